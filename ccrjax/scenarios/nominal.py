@@ -1,0 +1,44 @@
+"""The task with no hazard: for calibrating dynamics models and checking that learners learn.
+
+Success, as in turbulence: the robot arrives in the target area. A *virtual*
+hazard centre is still drawn exactly as in the other scenarios, so that the
+paper's "average distance to the hazard centre" stays comparable; it exerts no
+force, is never observed and is never dangerous.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from ccrjax.scenarios.base import Hazard, Layout, Scenario, sample_centre
+
+
+@dataclasses.dataclass(frozen=True)
+class Nominal(Scenario):
+    """No hazard at all."""
+
+    name = "nominal"
+    hazard_feature_size = 0
+
+    def sample_hazard(self, key: jax.Array, layout: Layout, batch: int) -> Hazard:
+        return Hazard(
+            centre=sample_centre(key, layout, batch),
+            half_extent=jnp.zeros((2, batch)),
+            direction=jnp.zeros((2, batch)),
+        )
+
+    def hazard_force(self, hazard, position, radius, noise, physics):
+        return jnp.zeros_like(position)
+
+    def in_danger(self, hazard, position, radius):
+        return jnp.zeros(position[:, 0].shape, bool)
+
+    def reached(self, hazard, position, layout):
+        rel = position - jnp.asarray(layout.goal, jnp.float32)[None, :, None]
+        return jnp.sum(rel * rel, axis=1) < layout.goal_radius**2
+
+    def hazard_features(self, hazard, position, radius):
+        return jnp.zeros((position.shape[0], 0, position.shape[2]), jnp.float32)

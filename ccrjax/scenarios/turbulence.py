@@ -1,0 +1,81 @@
+"""Emergency 1, turbulence: a circular area on the way shakes robots at random.
+
+Paper: "A circular turbulence area will appear on their way and apply forces with
+random directions on them. Coordinates of the turbulence area is only observable
+for robots inside the area. The task is considered successful for each robot that
+arrives in the target area."
+
+Each step, each robot whose centre is inside the area receives a force of
+uniformly random direction and uniformly random magnitude in ``[0, max_force]``,
+drawn fresh. The default bound, 10, is twice a robot's full actuation force (5),
+so a robot inside cannot simply hold its course.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from ccrjax.scenarios.base import (
+    Hazard,
+    Layout,
+    Scenario,
+    area_features,
+    check_positive,
+    check_range,
+    distance_to_centre,
+    sample_centre,
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Turbulence(Scenario):
+    """Circular turbulence area of random radius at a random place on the way."""
+
+    name = "turbulence"
+    hazard_feature_size = 4
+    needs_step_noise = True
+
+    radius_range: tuple[float, float] = (0.3, 0.5)
+    max_force: float = 10.0
+
+    def __post_init__(self) -> None:
+        check_range("Turbulence", "radius_range", self.radius_range, positive=True)
+        check_positive("Turbulence", "max_force", self.max_force, allow_zero=True)
+
+    def sample_hazard(self, key: jax.Array, layout: Layout, batch: int) -> Hazard:
+        centre_key, radius_key = jax.random.split(key)
+        radius = jax.random.uniform(
+            radius_key, (batch,), minval=self.radius_range[0], maxval=self.radius_range[1]
+        )
+        return Hazard(
+            centre=sample_centre(centre_key, layout, batch),
+            half_extent=jnp.stack([radius, radius]),
+            direction=jnp.zeros((2, batch)),
+        )
+
+    def step_noise(self, key: jax.Array, num_robots: int, batch: int) -> jax.Array:
+        # [N, 2, B]: a direction fraction and a magnitude fraction per robot.
+        return jax.random.uniform(key, (num_robots, 2, batch))
+
+    def _inside(self, hazard: Hazard, position: jax.Array) -> jax.Array:
+        return distance_to_centre(position, hazard) < hazard.half_extent[None, 0]
+
+    def hazard_force(self, hazard, position, radius, noise, physics):
+        angle = (2.0 * math.pi) * noise[:, 0]
+        magnitude = self.max_force * noise[:, 1]
+        force = magnitude[:, None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=1)
+        return jnp.where(self._inside(hazard, position)[:, None], force, 0.0)
+
+    def in_danger(self, hazard, position, radius):
+        return self._inside(hazard, position)
+
+    def reached(self, hazard, position, layout):
+        rel = position - jnp.asarray(layout.goal, jnp.float32)[None, :, None]
+        return jnp.sum(rel * rel, axis=1) < layout.goal_radius**2
+
+    def hazard_features(self, hazard, position, radius):
+        return area_features(self._inside(hazard, position), position, hazard)
