@@ -42,6 +42,7 @@ to a solid axis-aligned rectangle (the hidden obstacle), which the MPE does not 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import chex
@@ -54,6 +55,7 @@ __all__ = [
     "DISCRETE_ACTION_DIRECTIONS",
     "action_to_force",
     "contact_penetration",
+    "pair_difference_matrix",
     "disc_contact_forces",
     "integrate",
     "physics_step",
@@ -122,11 +124,33 @@ def action_to_force(action: jax.Array, sensitivity: float, discrete: bool) -> ja
 
 
 def contact_penetration(gap: jax.Array, margin: float) -> jax.Array:
-    """The MPE's smoothed penetration depth ``k * softplus(-gap / k)``.
+    """The MPE's smoothed penetration depth ``k * softplus(-gap / k)``, ``k = margin``.
 
     ``gap`` is the surface-to-surface distance (negative when overlapping).
+    ``softplus(x) = max(x, 0) + log(1 + exp(-|x|))``, written out because it is
+    the costliest arithmetic of a step and this form is about a third cheaper on
+    CPU than ``jax.nn.softplus``; where it rounds differently (``exp(-|x|)`` below
+    float32 epsilon) the force is below ``1e-8``.
     """
-    return jax.nn.softplus(-gap / margin) * margin
+    x = -gap / margin
+    return (jnp.maximum(x, 0.0) + jnp.log(1.0 + jnp.exp(-jnp.abs(x)))) * margin
+
+
+@functools.cache
+def pair_difference_matrix(num_bodies: int) -> np.ndarray:
+    """``D[p, k]``: +1 if body ``k`` is the first of pair ``p``, -1 if the second.
+
+    Pairs ``(a, b)`` with ``a < b`` in ``np.triu_indices`` order. ``D @ x`` gives
+    ``x_a - x_b`` for every pair exactly (one rounding), and ``D.T @ f`` adds
+    ``+f`` to ``a`` and ``-f`` to ``b``: the MPE's pairwise loop as two small
+    matrix products, which on CPU ran about three times faster than the same
+    contact law on a ``[K, K, B]`` all-pairs tensor.
+    """
+    first, second = np.triu_indices(num_bodies, 1)
+    matrix = np.zeros((len(first), num_bodies), np.float32)
+    matrix[np.arange(len(first)), first] = 1.0
+    matrix[np.arange(len(first)), second] = -1.0
+    return matrix
 
 
 def disc_contact_forces(
@@ -147,17 +171,18 @@ def disc_contact_forces(
     chex.assert_rank(position, 3)
     num_bodies = position.shape[0]
     chex.assert_shape(radius, (num_bodies,))
-    dx = position[:, None, 0, :] - position[None, :, 0, :]  # [K, K, B]: p_a - p_b
-    dy = position[:, None, 1, :] - position[None, :, 1, :]
-    dist = jnp.sqrt(dx * dx + dy * dy)
-    dist_min = (radius[:, None] + radius[None, :])[:, :, None]
+    pairs = jnp.asarray(pair_difference_matrix(num_bodies))  # [P, K]
+    first, second = np.triu_indices(num_bodies, 1)
+    delta = jnp.einsum("pk,kcb->pcb", pairs, position, precision="highest")  # p_a - p_b
+    dist = jnp.sqrt(jnp.sum(delta * delta, axis=1))  # [P, B]
+    dist_min = (radius[first] + radius[second])[:, None]
     penetration = contact_penetration(dist - dist_min, params.contact_margin)
-    not_self = jnp.asarray(1.0 - np.eye(num_bodies, dtype=np.float32))[:, :, None]
     separated = dist > 0.0
     scale = jnp.where(
         separated, params.contact_force * penetration / jnp.where(separated, dist, 1.0), 0.0
-    ) * not_self
-    return jnp.stack([jnp.sum(scale * dx, axis=1), jnp.sum(scale * dy, axis=1)], axis=1)
+    )
+    pair_force = scale[:, None, :] * delta  # on a; -pair_force on b
+    return jnp.einsum("pk,pcb->kcb", pairs, pair_force, precision="highest")
 
 
 def integrate(
