@@ -68,6 +68,7 @@ class WorldState:
     position: jax.Array  # float32[N, 2, B]
     velocity: jax.Array  # float32[N, 2, B]
     hazard: Hazard  # arrays [2, B]
+    hazard_memory: jax.Array  # float32[N, M, B]: what the hazard's physics remembers per robot
     succeeded: jax.Array  # bool[N, B]: the robot has accomplished the task this episode
     time: jax.Array  # int32[]: steps since the episode started (shared by the batch)
     key: jax.Array  # PRNG key for hazard noise and the next reset
@@ -191,6 +192,7 @@ class CCREnv(Env):
             position=position,
             velocity=jnp.zeros(shape, jnp.float32),
             hazard=hazard,
+            hazard_memory=self.scenario.init_memory(hazard, position),
             succeeded=self.scenario.reached(hazard, position, self.layout),
             time=jnp.zeros((), jnp.int32),
             key=key,
@@ -255,7 +257,7 @@ class CCREnv(Env):
         """
         force = action_to_force(action, self.sensitivity, self.discrete_actions)
         force = force + self.scenario.hazard_force(
-            world.hazard, world.position, self.radius, noise, self.physics
+            world.hazard, world.position, self.radius, noise, self.physics, world.hazard_memory
         )
         position, velocity = physics_step(
             world.position, world.velocity, self.radius, force, self.physics
@@ -264,6 +266,7 @@ class CCREnv(Env):
         return world.replace(
             position=position,
             velocity=velocity,
+            hazard_memory=self.scenario.update_memory(world.hazard, world.hazard_memory, position),
             succeeded=world.succeeded | reached,
             time=world.time + 1,
         )

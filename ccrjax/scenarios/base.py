@@ -147,10 +147,26 @@ class Scenario(abc.ABC):
         del key
         return jnp.zeros((num_robots, 0, batch), jnp.float32)
 
+    def init_memory(self, hazard: Hazard, position: jax.Array) -> jax.Array:
+        """Per-robot memory the hazard's physics keeps across steps (none by default).
+
+        ``float32[N, M, B]``; the hidden obstacle remembers where each robot last
+        was outside it, so that it pushes robots out the way they came in.
+        """
+        del hazard
+        return jnp.zeros((position.shape[0], 0, position.shape[2]), jnp.float32)
+
+    def update_memory(
+        self, hazard: Hazard, memory: jax.Array, position: jax.Array
+    ) -> jax.Array:
+        """The memory after the robots moved to ``position``."""
+        del hazard, position
+        return memory
+
     @abc.abstractmethod
     def hazard_force(
         self, hazard: Hazard, position: jax.Array, radius: jax.Array, noise: jax.Array,
-        physics,
+        physics, memory: jax.Array | None = None,
     ) -> jax.Array:
         """Force ``float[N, 2, B]`` the hazard exerts on each robot at ``position``."""
 

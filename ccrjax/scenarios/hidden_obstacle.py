@@ -6,11 +6,17 @@ coordinates of the obstacle. The task is considered successful for each robot th
 arrives at the other side of the obstacle."
 
 The obstacle is an axis-aligned rectangle across the way: ``thickness`` along the
-direction of travel (x, fixed, 0.4 by default) and a random ``length`` across it
+direction of travel (x, fixed, 0.6 by default) and a random ``length`` across it
 (y, uniform in ``length_range``). Robots collide with it through the MPE's soft
-contact law (:func:`ccrjax.world.rectangle_contact_force`). The default thickness
-is what keeps a robot at full speed (about 0.2 per step) from tunnelling through
-the soft wall; ``tests/test_scenarios.py`` pushes robots into it to check.
+contact law (:func:`ccrjax.world.rectangle_contact_force`). A robot at full speed
+(about 0.2 per step) gets up to about 0.35 deep into the soft wall before the contact
+force stops it (the MPE moves bodies with their old velocity before forces act), so
+the obstacle remembers where each robot last was outside and pushes it back out that
+way. That alone does not stop a disc that moves more than the whole thickness in
+one step: robots piling into the wall bounce off each other at up to about 4 units/s
+(0.4 per step), which carried some through a 0.4-thick wall and none through 0.6,
+hence the default; ``tests/test_scenarios.py`` drives robots into it at full speed
+to check.
 A robot observes one feature: whether it touches the obstacle.
 """
 
@@ -39,7 +45,7 @@ class HiddenObstacle(Scenario):
     name = "hidden_obstacle"
     hazard_feature_size = 1
 
-    thickness: float = 0.4
+    thickness: float = 0.6
     length_range: tuple[float, float] = (0.6, 1.4)
 
     def __post_init__(self) -> None:
@@ -63,9 +69,18 @@ class HiddenObstacle(Scenario):
         distance, _ = rectangle_signed_distance(position, hazard.centre, hazard.half_extent)
         return distance < radius[:, None]
 
-    def hazard_force(self, hazard, position, radius, noise, physics):
+    def init_memory(self, hazard: Hazard, position: jax.Array) -> jax.Array:
+        """Where each robot's centre last was outside the obstacle: ``float32[N, 2, B]``."""
+        return position
+
+    def update_memory(self, hazard: Hazard, memory: jax.Array, position: jax.Array):
+        distance, _ = rectangle_signed_distance(position, hazard.centre, hazard.half_extent)
+        return jnp.where((distance < 0.0)[:, None], memory, position)
+
+    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
+        """Contact with the obstacle; a robot inside is pushed back out the way it came."""
         return rectangle_contact_force(
-            position, radius, hazard.centre, hazard.half_extent, physics
+            position, radius, hazard.centre, hazard.half_extent, physics, entry=memory
         )
 
     def in_danger(self, hazard, position, radius):

@@ -30,7 +30,7 @@ class Nominal(Scenario):
             direction=jnp.zeros((2, batch)),
         )
 
-    def hazard_force(self, hazard, position, radius, noise, physics):
+    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
         return jnp.zeros_like(position)
 
     def in_danger(self, hazard, position, radius):

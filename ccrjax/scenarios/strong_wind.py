@@ -68,7 +68,7 @@ class StrongWind(Scenario):
         rel = jnp.abs(position - hazard.centre[None])
         return jnp.all(rel < hazard.half_extent[None], axis=1)
 
-    def hazard_force(self, hazard, position, radius, noise, physics):
+    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
         wind = self.force * hazard.direction[None]  # [1, 2, B]
         return jnp.where(self._inside(hazard, position)[:, None], wind, 0.0)
 

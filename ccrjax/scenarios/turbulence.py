@@ -71,7 +71,7 @@ class Turbulence(Scenario):
     def _inside(self, hazard: Hazard, position: jax.Array) -> jax.Array:
         return distance_to_centre(position, hazard) < hazard.half_extent[None, 0]
 
-    def hazard_force(self, hazard, position, radius, noise, physics):
+    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
         magnitude = self.max_force * noise[:, 1]
         force = magnitude[:, None] * unit_vector(noise[:, 0])
         return jnp.where(self._inside(hazard, position)[:, None], force, 0.0)

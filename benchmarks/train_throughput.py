@@ -1,0 +1,98 @@
+"""Speed of the whole training program, per learner, at default settings.
+
+    python benchmarks/train_throughput.py            # table
+    python benchmarks/train_throughput.py --json     # one JSON object per line
+
+For each learner it compiles ``TrainProgram.run`` (rollout of every training
+environment through the transform, replay insertion, learner updates, all in one
+``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after
+compilation, and reports the median: environment steps per second, learner
+updates per second, and the arithmetic of one update (matrix-multiply FLOPs) with
+the rate it implies, so the CPU's utilisation can be judged. Learning starts at
+once (``learning_starts=0``) so every measured iteration includes its updates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+
+import jax
+
+from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
+
+
+def measure(algo: str, variant: str, scenario: str, iterations: int, repeats: int) -> dict:
+    config = TrainConfig(algo=algo, scenario=scenario, variant=variant, learning_starts=0)
+    program = make_train(config)
+    state = program.init(jax.random.PRNGKey(0))
+    run = jax.jit(program.run, static_argnums=1)
+    compile_start = time.perf_counter()
+    state, _ = run(state, iterations)
+    jax.block_until_ready(state)
+    compile_s = time.perf_counter() - compile_start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        state, _ = run(state, iterations)
+        jax.block_until_ready(state)
+        times.append(time.perf_counter() - start)
+    median = statistics.median(times)
+    updates = iterations * config.updates_per_iteration
+    flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
+    return {
+        "algo": algo,
+        "variant": variant,
+        "scenario": scenario,
+        "env_steps_per_s": iterations * config.steps_per_iteration / median,
+        "updates_per_s": updates / median,
+        "gflop_per_update": flops / 1e9,
+        "gflop_per_s": flops * updates / median / 1e9,
+        "median_s": median,
+        "repeats": repeats,
+        "iterations": iterations,
+        "first_call_s": compile_s,
+        "device": jax.devices()[0].device_kind,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=["plain"])
+    parser.add_argument("--scenario", default="hidden_obstacle")
+    parser.add_argument("--iterations", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+
+    rows = []
+    for algo in args.algos:
+        for variant in args.variants:
+            row = measure(algo, variant, args.scenario, args.iterations, args.repeats)
+            rows.append(row)
+            if args.json:
+                print(json.dumps(row), flush=True)
+    if not args.json:
+        print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__}")
+        header = (
+            f"{'learner':8} {'variant':12} {'env steps/s':>12} {'updates/s':>10} "
+            f"{'GFLOP/upd':>10} {'GFLOP/s':>8}"
+        )
+        print(header)
+        print("-" * len(header))
+        for row in rows:
+            print(
+                f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f} "
+                f"{row['updates_per_s']:10.1f} {row['gflop_per_update']:10.2f} "
+                f"{row['gflop_per_s']:8.1f}"
+            )
+        print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

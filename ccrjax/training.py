@@ -1,0 +1,362 @@
+"""The training program: one configuration compiles into one pure function of a key.
+
+``make_train(config)`` returns a :class:`TrainProgram` whose functions are pure
+and jit/vmap friendly:
+
+* ``init(key) -> TrainState``
+* ``run(state, num_iterations) -> (state, per-iteration metrics)``: ``lax.scan``
+  over training iterations; one iteration = one episode of ``num_envs``
+  environments (rollout through the transform, transitions into the on-device
+  replay buffer) then ``updates_per_iteration`` learner updates;
+* ``evaluate(state, key) -> metrics``: fresh episodes, deterministic policy;
+* ``train(key) -> (state, evaluation history)``: the whole schedule.
+
+``jax.jit(jax.vmap(program.train))(keys)`` trains one seed per key in one program.
+Python only drives the outside (chunks of iterations for progress, logs and
+checkpoints: :mod:`ccrjax.train`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from ccrjax.env import CCREnv
+from ccrjax.learners.base import Learner, Transition, check_positive_int
+from ccrjax.learners.ddpg import DDPG, DDPGConfig
+from ccrjax.learners.replay import ReplayBuffer, add_block, init_replay, replay_capacity, sample
+from ccrjax.rollout import episode_metrics, run_episode
+from ccrjax.scenarios import SCENARIOS
+from ccrjax.transforms import Pessimistic, Plain, Transform
+
+ALGOS = ("iddpg", "maddpg", "maac")
+VARIANTS = ("plain", "pessimistic", "ccr")
+
+
+def _default_maac_config():
+    from ccrjax.learners.maac import MAACConfig
+
+    return MAACConfig()
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run of one seed.
+
+    Sizes the paper leaves open are chosen here and documented in the README:
+    8 training environments per seed, episodes of 50 steps, and the environment-step
+    budget ``total_env_steps`` per seed (every environment step of every training
+    environment counts).
+    """
+
+    algo: str = "maddpg"
+    scenario: str = "nominal"
+    variant: str = "plain"
+    penalty: float = 1.0  # pessimistic baseline: reward lowered on danger steps
+    num_robots: int = 5
+    episode_length: int = 50
+    num_envs: int = 8
+    total_env_steps: int = 400_000
+    eval_every: int = 20_000  # environment steps between evaluations
+    eval_episodes: int = 64
+    learning_starts: int | None = None  # default: batch_size * episode_length transitions
+    scenario_params: dict[str, Any] = dataclasses.field(default_factory=dict)
+    ddpg: DDPGConfig = DDPGConfig()
+    maac: Any = None  # MAACConfig; None = its defaults
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo must be one of {list(ALGOS)}, got {self.algo!r}")
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {self.scenario!r}")
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
+        for name in ("num_envs", "total_env_steps", "eval_every", "eval_episodes"):
+            check_positive_int("TrainConfig", name, getattr(self, name))
+        if self.learning_starts is not None:
+            if isinstance(self.learning_starts, bool) or not isinstance(
+                self.learning_starts, int
+            ) or self.learning_starts < 0:
+                raise ValueError(
+                    f"TrainConfig.learning_starts must be None or an integer >= 0, "
+                    f"got {self.learning_starts!r}"
+                )
+        if self.maac is None and self.algo == "maac":
+            object.__setattr__(self, "maac", _default_maac_config())
+        Pessimistic(penalty=self.penalty)  # validates the penalty whatever the variant
+        # Building the pieces validates the rest (env sizes, penalty, learner fields).
+        make_transform(self)
+        make_env(self, self.num_envs)
+
+    @property
+    def learner_config(self) -> Any:
+        return self.maac if self.algo == "maac" else self.ddpg
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Environment steps of one iteration: one episode of every training env."""
+        return self.num_envs * self.episode_length
+
+    @property
+    def iterations_per_eval(self) -> int:
+        return max(1, round(self.eval_every / self.steps_per_iteration))
+
+    @property
+    def num_iterations(self) -> int:
+        """Iterations of the run: ``total_env_steps`` rounded up to whole evaluation intervals
+        (one compiled chunk of iterations serves the whole run)."""
+        iterations = math.ceil(self.total_env_steps / self.steps_per_iteration)
+        return self.iterations_per_eval * math.ceil(iterations / self.iterations_per_eval)
+
+    @property
+    def updates_per_iteration(self) -> int:
+        """``gradient_steps`` updates every ``update_every`` environment steps (at least 1)."""
+        learner = self.learner_config
+        return max(
+            1, round(self.steps_per_iteration * learner.gradient_steps / learner.update_every)
+        )
+
+    @property
+    def replay_capacity(self) -> int:
+        """The learner's buffer size, a multiple of one iteration's transitions, and no
+        larger than all the transitions the run will ever collect."""
+        collected = self.num_iterations * self.steps_per_iteration
+        wanted = min(self.learner_config.buffer_size, collected)
+        return replay_capacity(wanted, self.steps_per_iteration)
+
+    @property
+    def learning_starts_transitions(self) -> int:
+        if self.learning_starts is not None:
+            return self.learning_starts
+        return self.learner_config.batch_size * self.episode_length
+
+
+def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
+    return CCREnv(
+        config.scenario,
+        num_robots=config.num_robots,
+        num_envs=num_envs,
+        episode_length=config.episode_length,
+        discrete_actions=config.algo == "maac",
+        scenario_params=dict(config.scenario_params),
+    )
+
+
+def make_learner(config: TrainConfig) -> Learner:
+    if config.algo == "iddpg":
+        return DDPG(dataclasses.replace(config.ddpg, centralised_critic=False))
+    if config.algo == "maddpg":
+        return DDPG(dataclasses.replace(config.ddpg, centralised_critic=True))
+    from ccrjax.learners.maac import MAAC
+
+    return MAAC(config.maac)
+
+
+def make_transform(config: TrainConfig) -> Transform:
+    if config.variant == "plain":
+        return Plain()
+    if config.variant == "pessimistic":
+        return Pessimistic(penalty=config.penalty)
+    raise ValueError("variant 'ccr' is not available yet: CCR is being built (issue: CCR itself)")
+
+
+class NonFiniteTraining(RuntimeError):
+    """A learner's parameters or losses stopped being finite during training."""
+
+
+@struct.dataclass
+class TrainState:
+    """Everything a training run carries from one iteration to the next (one seed)."""
+
+    learner: Any
+    buffer: ReplayBuffer
+    transform: Any
+    key: jax.Array
+    iteration: jax.Array  # int32[]
+    env_steps: jax.Array  # int32[]
+    updates: jax.Array  # int32[]
+    danger_steps: jax.Array  # float32[]: dangerous robot-steps during training, cumulative
+    nonfinite_iteration: jax.Array  # int32[]: first iteration whose update went non-finite, or -1
+
+
+def all_finite(tree: Any) -> jax.Array:
+    leaves = jax.tree_util.tree_leaves(tree)
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+class TrainProgram:
+    """The pure functions of one training configuration (see the module docstring)."""
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        self.env = make_env(config, config.num_envs)
+        self.eval_env = make_env(config, config.eval_episodes)
+        self.learner = make_learner(config)
+        self.transform = make_transform(config)
+        self.obs_size = self.env.observation_size + self.transform.extra_obs_size(self.env)
+
+    # ------------------------------------------------------------------ state
+    def init(self, key: jax.Array) -> TrainState:
+        learner_key, key = jax.random.split(key)
+        n, f = self.config.num_robots, self.obs_size
+        action = (
+            jnp.zeros((n,), jnp.int32) if self.learner.discrete else jnp.zeros((n, 2), jnp.float32)
+        )
+        example = Transition(
+            obs=jnp.zeros((n, f), jnp.float32),
+            action=action,
+            reward=jnp.zeros((n,), jnp.float32),
+            next_obs=jnp.zeros((n, f), jnp.float32),
+            done=jnp.zeros((), jnp.float32),
+        )
+        return TrainState(
+            learner=self.learner.init(learner_key, n, f),
+            buffer=init_replay(example, self.config.replay_capacity),
+            transform=self.transform.init(self.env),
+            key=key,
+            iteration=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+            danger_steps=jnp.zeros((), jnp.float32),
+            nonfinite_iteration=jnp.full((), -1, jnp.int32),
+        )
+
+    # ------------------------------------------------------------------ iteration
+    def iteration(self, state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        """One episode of every training environment, then the learner's updates."""
+        config = self.config
+        key, rollout_key, update_key = jax.random.split(state.key, 3)
+
+        def explore(obs, key):
+            return self.learner.act(state.learner, obs, key, True)
+
+        transform_state, episode = run_episode(
+            self.env, self.transform, state.transform, explore, self.learner.discrete, rollout_key
+        )
+        block = jax.tree_util.tree_map(
+            lambda x: x.reshape((-1,) + x.shape[2:]), episode.transitions
+        )
+        buffer = add_block(state.buffer, block)
+
+        def do_updates(learner_state):
+            def one_update(learner_state, key):
+                sample_key, learn_key = jax.random.split(key)
+                batch = sample(buffer, sample_key, config.learner_config.batch_size)
+                if getattr(self.learner, "needs_reward_stats", False):
+                    batch = self.learner.normalise_rewards(batch, *buffer.reward_mean_std())
+                return self.learner.update(learner_state, batch, learn_key)
+
+            keys = jax.random.split(update_key, config.updates_per_iteration)
+            learner_state, metrics = jax.lax.scan(one_update, learner_state, keys)
+            return learner_state, jax.tree_util.tree_map(jnp.mean, metrics)
+
+        def skip_updates(learner_state):
+            _, metrics = jax.eval_shape(do_updates, learner_state)
+            return learner_state, jax.tree_util.tree_map(
+                lambda m: jnp.zeros(m.shape, m.dtype), metrics
+            )
+
+        learning = buffer.size >= config.learning_starts_transitions
+        learner_state, update_metrics = jax.lax.cond(
+            learning, do_updates, skip_updates, state.learner
+        )
+        finite = all_finite(learner_state)
+        learner_state = jax.tree_util.tree_map(
+            lambda new, old: jnp.where(finite, new, old), learner_state, state.learner
+        )
+        nonfinite_iteration = jnp.where(
+            (state.nonfinite_iteration < 0) & ~finite, state.iteration, state.nonfinite_iteration
+        )
+        danger_steps = state.danger_steps + jnp.sum(episode.danger)
+        new_state = state.replace(
+            learner=learner_state,
+            buffer=buffer,
+            transform=transform_state,
+            key=key,
+            iteration=state.iteration + 1,
+            env_steps=state.env_steps + config.steps_per_iteration,
+            updates=state.updates + jnp.where(learning, config.updates_per_iteration, 0),
+            danger_steps=danger_steps,
+            nonfinite_iteration=nonfinite_iteration,
+        )
+        metrics = {
+            **{f"train_{k}": v for k, v in episode_metrics(episode).items()},
+            **update_metrics,
+            "cumulative_danger_steps": danger_steps,
+        }
+        return new_state, metrics
+
+    def run(self, state: TrainState, num_iterations: int):
+        """``num_iterations`` iterations in one ``lax.scan``; metrics stacked per iteration."""
+        return jax.lax.scan(lambda s, _: self.iteration(s), state, None, length=num_iterations)
+
+    def raise_if_nonfinite(self, state: TrainState) -> None:
+        """Raises :class:`NonFiniteTraining` naming the iteration if any seed went non-finite.
+
+        The compiled program never applies a non-finite update (it keeps the last
+        finite parameters and records the iteration), so the state is still usable.
+        """
+        bad = np.asarray(jax.device_get(state.nonfinite_iteration)).reshape(-1)
+        if np.any(bad >= 0):
+            seeds = [int(i) for i in np.flatnonzero(bad >= 0)]
+            first = int(bad[bad >= 0].min())
+            raise NonFiniteTraining(
+                f"training became non-finite at iteration {first} (seed index {seeds}); "
+                "the parameters kept are the last finite ones"
+            )
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, state: TrainState, key: jax.Array) -> dict[str, jax.Array]:
+        """The paper's four metrics on ``eval_episodes`` fresh episodes, deterministic policy."""
+
+        def greedy(obs, key):
+            return self.learner.act(state.learner, obs, key, False)
+
+        _, episode = run_episode(
+            self.eval_env, self.transform, state.transform, greedy, self.learner.discrete, key
+        )
+        return episode_metrics(episode)
+
+    # ------------------------------------------------------------------ schedule
+    @property
+    def num_evaluations(self) -> int:
+        """Evaluations after the first: one per chunk of ``iterations_per_eval`` iterations."""
+        return self.config.num_iterations // self.config.iterations_per_eval
+
+    def train(self, key: jax.Array) -> tuple[TrainState, dict[str, jax.Array]]:
+        """The whole run: an evaluation at the start and after every ``eval_every`` steps.
+
+        Returns the final state and the evaluation history, leaves ``[num_evaluations + 1]``
+        (with ``env_steps`` and ``cumulative_danger_steps`` at each point).
+        """
+        eval_key, key = jax.random.split(key)
+        state = self.init(key)
+
+        def point(state, key):
+            return {
+                **self.evaluate(state, key),
+                "env_steps": state.env_steps,
+                "cumulative_danger_steps": state.danger_steps,
+            }
+
+        def one_chunk(state, index):
+            state, _ = self.run(state, self.config.iterations_per_eval)
+            return state, point(state, jax.random.fold_in(eval_key, index + 1))
+
+        first = point(state, jax.random.fold_in(eval_key, 0))
+        state, history = jax.lax.scan(one_chunk, state, jnp.arange(self.num_evaluations))
+        history = jax.tree_util.tree_map(
+            lambda a, b: jnp.concatenate([a[None], b]), first, history
+        )
+        return state, history
+
+
+def make_train(config: TrainConfig) -> TrainProgram:
+    """The training program of ``config``; ``make_train(c).train`` is a pure ``train(key)``."""
+    return TrainProgram(config)

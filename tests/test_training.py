@@ -1,0 +1,143 @@
+"""The training program: transforms, seeds under vmap, configuration errors, non-finite runs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ccrjax.env import CCREnv
+from ccrjax.learners.ddpg import DDPGConfig
+from ccrjax.training import NonFiniteTraining, TrainConfig, make_train
+from ccrjax.transforms import Pessimistic, Plain
+
+TINY = TrainConfig(
+    algo="maddpg",
+    scenario="hidden_obstacle",
+    num_envs=2,
+    episode_length=10,
+    total_env_steps=200,
+    eval_every=100,
+    eval_episodes=4,
+    learning_starts=40,
+    ddpg=DDPGConfig(batch_size=32, actor_hidden=(16,), critic_hidden=(16,), update_every=10),
+)
+
+
+def stepped_states(scenario: str = "hidden_obstacle"):
+    env = CCREnv(scenario, num_envs=64, episode_length=30)
+    state = env.reset(jax.random.PRNGKey(0))
+    # Everyone runs flat out to +x, straight into whatever is on the way.
+    action = jnp.zeros((env.num_robots, 2, env.num_envs)).at[:, 0].set(1.0)
+    states = []
+    for _ in range(25):
+        next_state = env.transition(state, action)
+        states.append((state, action, next_state))
+        state = next_state
+    return env, states
+
+
+def test_pessimistic_subtracts_the_penalty_exactly_on_danger_steps():
+    env, states = stepped_states()
+    transform = Pessimistic(penalty=2.5)
+    saw_danger = saw_safe = False
+    for state, action, next_state in states:
+        _, obs, reward = transform.step((), state, action, next_state)
+        danger = np.asarray(next_state.metrics["danger"]) > 0
+        env_reward = np.asarray(next_state.reward)
+        np.testing.assert_array_equal(np.asarray(reward)[danger], env_reward[danger] - 2.5)
+        np.testing.assert_array_equal(np.asarray(reward)[~danger], env_reward[~danger])
+        np.testing.assert_array_equal(obs, next_state.obs)
+        saw_danger |= danger.any()
+        saw_safe |= (~danger).any()
+    assert saw_danger and saw_safe, "the rollout should contain both kinds of steps"
+
+
+def test_plain_changes_nothing():
+    env, states = stepped_states("strong_wind")
+    state, action, next_state = states[3]
+    _, obs, reward = Plain().step((), state, action, next_state)
+    np.testing.assert_array_equal(reward, next_state.reward)
+    np.testing.assert_array_equal(obs, next_state.obs)
+
+
+@pytest.fixture(scope="module")
+def tiny_program():
+    return make_train(TINY)
+
+
+@pytest.fixture(scope="module")
+def separate_runs(tiny_program):
+    """Two seeds trained one at a time (one compilation, reused by several tests)."""
+    keys = jax.random.split(jax.random.PRNGKey(42), 2)
+    train = jax.jit(tiny_program.train)
+    return keys, [train(key) for key in keys]
+
+
+def test_vmapped_seeds_equal_separate_runs(tiny_program, separate_runs):
+    keys, runs = separate_runs
+    together_state, together = jax.jit(jax.vmap(tiny_program.train))(keys)
+    for s, (alone_state, alone) in enumerate(runs):
+        for name in alone:
+            np.testing.assert_allclose(together[name][s], alone[name], rtol=1e-4, atol=1e-4)
+        seed_learner = jax.tree_util.tree_map(lambda x, s=s: x[s], together_state.learner)
+        for a, b in zip(
+            jax.tree_util.tree_leaves(alone_state.learner),
+            jax.tree_util.tree_leaves(seed_learner),
+            strict=True,
+        ):
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    assert int(together_state.updates[0]) > 0
+    # Two seeds are two different runs.
+    assert not np.allclose(together["return"][0], together["return"][1])
+
+
+def test_training_counts_steps_updates_and_dangerous_steps(tiny_program, separate_runs):
+    state, history = separate_runs[1][0]
+    assert int(state.env_steps) == TINY.num_iterations * TINY.steps_per_iteration
+    assert int(state.iteration) == TINY.num_iterations
+    # Updates start once 40 transitions are stored: from the second iteration on.
+    assert int(state.updates) == (TINY.num_iterations - 1) * TINY.updates_per_iteration
+    danger = np.asarray(history["cumulative_danger_steps"])
+    assert np.all(np.diff(danger) >= 0)
+    assert len(history["return"]) == tiny_program.num_evaluations + 1
+    np.testing.assert_array_equal(
+        history["env_steps"], np.arange(len(danger)) * TINY.eval_every
+    )
+    tiny_program.raise_if_nonfinite(state)
+
+
+def test_a_run_that_turns_non_finite_is_stopped_with_its_iteration(tiny_program):
+    state = tiny_program.init(jax.random.PRNGKey(0))
+    # Finite but enormous critic weights: the first update overflows to inf and NaN.
+    huge = jax.tree_util.tree_map(lambda x: x * 1e20, state.learner.critic)
+    state = state.replace(learner=state.learner.replace(critic=huge))
+    state, _ = jax.jit(tiny_program.run, static_argnums=1)(state, TINY.num_iterations)
+    bad = int(state.nonfinite_iteration)
+    assert bad >= 1  # the first iteration only fills the buffer
+    # The parameters kept are the last finite ones.
+    assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(state.learner))
+    with pytest.raises(NonFiniteTraining, match=f"iteration {bad}"):
+        tiny_program.raise_if_nonfinite(state)
+
+
+@pytest.mark.parametrize(
+    "changes, field",
+    [
+        ({"algo": "ppo"}, "algo"),
+        ({"scenario": "lava"}, "scenario"),
+        ({"variant": "optimistic"}, "variant"),
+        ({"num_envs": 0}, "num_envs"),
+        ({"total_env_steps": -5}, "total_env_steps"),
+        ({"penalty": -1.0}, "penalty"),
+        ({"penalty": float("nan")}, "penalty"),
+        ({"num_robots": 1}, "num_robots"),
+        ({"episode_length": 0}, "episode_length"),
+    ],
+)
+def test_bad_config_is_refused_before_anything_compiles(changes, field):
+    with pytest.raises(ValueError, match=field):
+        dataclasses.replace(TINY, **changes)
