@@ -3,8 +3,12 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+# JaxMARL, for benchmarks/jaxmarl_peer.py only: its own venv, never a ccrjax dependency.
+PEER_VENV  := benchmarks/.peer-venv
+PEER_PY    := $(PEER_VENV)/bin/python
+PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train test lint bench clean
+.PHONY: install train test lint bench bench-peers clean
 
 install: $(STAMP)
 
@@ -27,5 +31,15 @@ lint: install
 bench: install
 	$(PY) benchmarks/env_throughput.py
 
+# Peer comparison: JaxMARL's MPE simple_spread, measured the same way, in its own venv.
+bench-peers: $(PEER_STAMP)
+	$(PEER_PY) benchmarks/jaxmarl_peer.py
+
+$(PEER_STAMP):
+	@test -x $(PEER_PY) || $(PYTHON) -m venv $(PEER_VENV)
+	$(PEER_PY) -m pip install --quiet --upgrade pip
+	$(PEER_PY) -m pip install --quiet jaxmarl
+	@touch $(PEER_STAMP)
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) $(PEER_VENV) runs .pytest_cache

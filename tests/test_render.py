@@ -1,0 +1,114 @@
+"""Pictures of an episode: recording, validation, PNG and GIF output."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+from ccrjax.env import CCREnv
+from ccrjax.render import (
+    CCR_STATE_COLOURS,
+    CCR_STATE_NAMES,
+    EpisodeRecord,
+    animate_episode,
+    draw_episode,
+    record_episode,
+)
+
+STEPS = 5
+
+
+def random_policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+    num_robots, _, num_envs = obs.shape
+    return jax.random.uniform(key, (num_robots, 2, num_envs), minval=-1.0, maxval=1.0)
+
+
+@pytest.fixture(scope="module")
+def env() -> CCREnv:
+    return CCREnv("strong_wind", num_robots=3, num_envs=2, episode_length=STEPS)
+
+
+@pytest.fixture(scope="module")
+def record(env: CCREnv) -> EpisodeRecord:
+    return record_episode(env, random_policy, jax.random.key(0), env_index=1)
+
+
+def test_record_matches_the_rollout(env: CCREnv, record: EpisodeRecord) -> None:
+    assert record.scenario == "strong_wind"
+    assert record.positions.shape == (STEPS + 1, 3, 2)
+    assert record.states.shape == (STEPS + 1, 3)
+    assert np.all(record.states == 0)
+    assert record.state_names == ("robot",)
+    # Robots start in the layout's start box; the hazard lies in its range.
+    layout = env.layout
+    offset = np.abs(record.positions[0] - np.array(layout.start_centre))
+    assert np.all(offset <= np.array(layout.start_half_extent) + 1e-6)
+    assert layout.hazard_x_range[0] <= record.hazard_centre[0] <= layout.hazard_x_range[1]
+    assert record.hazard_half_extent[0] == record.hazard_half_extent[1] > 0
+    assert record.goal == env.layout.goal
+    assert record.goal_radius == env.layout.goal_radius
+    # Robots moved, and every recorded position is finite.
+    assert np.all(np.isfinite(record.positions))
+    assert not np.allclose(record.positions[0], record.positions[-1])
+
+
+def test_draw_and_animate(record: EpisodeRecord, tmp_path) -> None:
+    png, gif = tmp_path / "episode.png", tmp_path / "episode.gif"
+    draw_episode(record, png)
+    animate_episode(record, gif, fps=5)
+    with Image.open(png) as image:
+        image.verify()
+    with Image.open(png) as image:
+        assert image.format == "PNG" and min(image.size) > 100
+    with Image.open(gif) as image:
+        assert image.format == "GIF"
+        assert image.n_frames == STEPS + 1
+    assert gif.stat().st_size < 2_000_000
+
+
+def test_state_colours_are_drawn(env: CCREnv, record: EpisodeRecord, tmp_path) -> None:
+    """CCR states from a function of the trajectory; their colours appear in the GIF."""
+
+    def states(trajectory) -> jax.Array:
+        # [T + 1, N, B]: robot i is in state i % 3, to show all three colours.
+        shape = trajectory.reward.shape
+        return jnp.broadcast_to(jnp.arange(shape[1])[None, :, None] % 3, shape)
+
+    plain = record  # the same rollout, recorded without states
+    record = record_episode(env, random_policy, jax.random.key(0), env_index=1, states=states,
+                            state_names=CCR_STATE_NAMES, state_colours=CCR_STATE_COLOURS)
+    np.testing.assert_array_equal(record.states[0], [0, 1, 2])
+    np.testing.assert_allclose(record.positions, plain.positions)
+    gif = tmp_path / "ccr.gif"
+    animate_episode(record, gif, dpi=60)
+    with Image.open(gif) as image:
+        image.seek(STEPS)
+        pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
+    for colour in CCR_STATE_COLOURS:
+        rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)])
+        assert np.any(np.all(pixels == rgb, axis=1)), f"{colour} missing from the last frame"
+
+
+def test_record_validation(record: EpisodeRecord) -> None:
+    with pytest.raises(ValueError, match="states"):
+        dataclasses.replace(record, states=np.zeros((STEPS, 3), np.int32))
+    with pytest.raises(ValueError, match="states"):
+        dataclasses.replace(record, states=np.full((STEPS + 1, 3), 1, np.int32))
+    with pytest.raises(ValueError, match="state_colours"):
+        dataclasses.replace(record, state_names=("a", "b"))
+    with pytest.raises(ValueError, match="positions"):
+        dataclasses.replace(record, positions=np.zeros((STEPS + 1, 3, 3)))
+    # A valid three-state record is accepted, and its arrays are read-only.
+    three = dataclasses.replace(record, states=np.full((STEPS + 1, 3), 2),
+                                state_names=CCR_STATE_NAMES, state_colours=CCR_STATE_COLOURS)
+    assert not three.states.flags.writeable and not three.positions.flags.writeable
+
+
+def test_record_episode_rejects_bad_env_index(env: CCREnv) -> None:
+    with pytest.raises(ValueError, match="env_index"):
+        record_episode(env, random_policy, jax.random.key(0), env_index=2)
