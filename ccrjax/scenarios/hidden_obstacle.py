@@ -75,7 +75,8 @@ class HiddenObstacle(Scenario):
 
     def update_memory(self, hazard: Hazard, memory: jax.Array, position: jax.Array):
         distance, _ = rectangle_signed_distance(position, hazard.centre, hazard.half_extent)
-        return jnp.where((distance < 0.0)[:, None], memory, position)
+        # Only points strictly outside are entry points (a point on a face is not).
+        return jnp.where((distance <= 0.0)[:, None], memory, position)
 
     def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
         """Contact with the obstacle; a robot inside is pushed back out the way it came."""
