@@ -219,14 +219,21 @@ obstacle_rollout_jit = jax.jit(obstacle_rollout, static_argnames="steps")
 
 
 def passed_through(trajectory, centre, half):
-    """Whether a centre was ever beyond the obstacle's far face while level with it, ``[N, B]``.
+    """Whether a centre ever left the obstacle through its far (+x) face, ``[N, B]``.
 
-    (With the obstacle's entry memory a robot may get past the mid-line, up to about 0.35
-    deep, and still be pushed back out the way it came: the far face is the test.)
+    A step from ``x <= far face`` to ``x > far face`` whose segment crosses the far face's
+    line level with the obstacle (``|y| < half length``). With the obstacle's entry
+    memory a robot may get past the mid-line, up to about 0.35 deep, and still be pushed
+    back out the way it came, and a robot may slide along a face and go around a corner:
+    neither is passing through.
     """
-    x = trajectory[:, :, 0] - centre[0]
+    x = trajectory[:, :, 0] - centre[0]  # [T, N, B]
     y = trajectory[:, :, 1] - centre[1]
-    return np.any((x > half[0]) & (np.abs(y) < half[1]), axis=0)
+    x0, x1, y0, y1 = x[:-1], x[1:], y[:-1], y[1:]
+    crosses = (x0 <= half[0]) & (x1 > half[0])
+    step = np.where(crosses, x1 - x0, 1.0)
+    y_at_face = y0 + (half[0] - x0) * (y1 - y0) / step
+    return np.any(crosses & (np.abs(y_at_face) < half[1]), axis=0)
 
 
 DEFAULT_HALF_THICKNESS = HiddenObstacle().thickness / 2
