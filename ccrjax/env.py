@@ -211,20 +211,25 @@ class CCREnv(Env):
         others = jnp.stack([distance, rel_x * inverse, rel_y * inverse], axis=2)
         others = others.reshape(self.num_robots, 3 * (self.num_robots - 1), self.num_envs)
 
-        to_goal = self.goal[None, :, None] - position  # [N, 2, B]
-        goal_distance = jnp.sqrt(jnp.sum(to_goal * to_goal, axis=1, keepdims=True))
-        goal_direction = to_goal * jnp.where(
+        to_goal_x = self.layout.goal[0] - position[:, 0]  # [N, B]
+        to_goal_y = self.layout.goal[1] - position[:, 1]
+        goal_distance = jnp.sqrt(to_goal_x * to_goal_x + to_goal_y * to_goal_y)
+        inverse_goal = jnp.where(
             goal_distance > 0.0, 1.0 / jnp.where(goal_distance > 0.0, goal_distance, 1.0), 0.0
+        )
+        goal_features = jnp.stack(
+            [goal_distance, to_goal_x * inverse_goal, to_goal_y * inverse_goal], axis=1
         )
         hazard = self.scenario.hazard_features(world.hazard, position, self.radius)
         return jnp.concatenate(
-            [position, world.velocity, others, goal_distance, goal_direction, hazard], axis=1
+            [position, world.velocity, others, goal_features, hazard], axis=1
         )
 
     def reward(self, world: WorldState) -> jax.Array:
         """``-|p_i - destination|`` per robot, ``float32[N, B]``."""
-        to_goal = world.position - self.goal[None, :, None]
-        return -jnp.sqrt(jnp.sum(to_goal * to_goal, axis=1))
+        to_goal_x = world.position[:, 0] - self.layout.goal[0]
+        to_goal_y = world.position[:, 1] - self.layout.goal[1]
+        return -jnp.sqrt(to_goal_x * to_goal_x + to_goal_y * to_goal_y)
 
     def metrics(self, world: WorldState) -> dict[str, jax.Array]:
         """Per robot and environment: in danger, succeeded, distance to the hazard centre."""

@@ -36,6 +36,9 @@ from ccrjax.scenarios import SCENARIOS
 from ccrjax.transforms import Pessimistic, Plain, Transform
 
 ALGOS = ("iddpg", "maddpg", "maac")
+# Default environment steps per seed: what each learner needs to solve `nominal` (success
+# >= 90%, experiments/sanity.py). MAAC makes 4 heavier updates per 100 steps, DDPG one.
+DEFAULT_BUDGET = {"iddpg": 400_000, "maddpg": 400_000, "maac": 200_000}
 VARIANTS = ("plain", "pessimistic", "ccr")
 
 
@@ -62,7 +65,7 @@ class TrainConfig:
     num_robots: int = 5
     episode_length: int = 50
     num_envs: int = 8
-    total_env_steps: int = 400_000
+    total_env_steps: int | None = None  # None: DEFAULT_BUDGET[algo]
     eval_every: int = 20_000  # environment steps between evaluations
     eval_episodes: int = 64
     learning_starts: int | None = None  # default: batch_size * episode_length transitions
@@ -77,6 +80,8 @@ class TrainConfig:
             raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {self.scenario!r}")
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
+        if self.total_env_steps is None and self.algo in ALGOS:
+            object.__setattr__(self, "total_env_steps", DEFAULT_BUDGET[self.algo])
         for name in ("num_envs", "total_env_steps", "eval_every", "eval_episodes"):
             check_positive_int("TrainConfig", name, getattr(self, name))
         if self.learning_starts is not None:

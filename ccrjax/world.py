@@ -59,6 +59,7 @@ __all__ = [
     "disc_contact_forces",
     "integrate",
     "physics_step",
+    "rectangle_distance",
     "rectangle_signed_distance",
     "rectangle_contact_force",
 ]
@@ -174,7 +175,7 @@ def disc_contact_forces(
     pairs = jnp.asarray(pair_difference_matrix(num_bodies))  # [P, K]
     first, second = np.triu_indices(num_bodies, 1)
     delta = jnp.einsum("pk,kcb->pcb", pairs, position, precision="highest")  # p_a - p_b
-    dist = jnp.sqrt(jnp.sum(delta * delta, axis=1))  # [P, B]
+    dist = jnp.sqrt(delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1])  # [P, B]
     dist_min = (radius[first] + radius[second])[:, None]
     penetration = contact_penetration(dist - dist_min, params.contact_margin)
     separated = dist > 0.0
@@ -196,7 +197,7 @@ def integrate(
     position = position + velocity * params.dt
     velocity = velocity * (1.0 - params.damping) + (force / params.mass) * params.dt
     if params.max_speed is not None:
-        speed = jnp.sqrt(jnp.sum(velocity * velocity, axis=1, keepdims=True))
+        speed = jnp.sqrt(velocity[:, :1] ** 2 + velocity[:, 1:] ** 2)
         too_fast = speed > params.max_speed
         velocity = jnp.where(
             too_fast, velocity / jnp.where(too_fast, speed, 1.0) * params.max_speed, velocity
@@ -229,6 +230,23 @@ def physics_step(
     return integrate(position, velocity, force, params)
 
 
+def rectangle_distance(position: jax.Array, centre: jax.Array, half_extent: jax.Array):
+    """Signed distance ``float[K, B]`` from points to an axis-aligned rectangle's boundary.
+
+    Negative inside (minus the depth below the nearest face). The cheap half of
+    :func:`rectangle_signed_distance`, for predicates that need no normal.
+    (Written per component: XLA on CPU runs operations over the length-2 xy axis
+    several times slower than the same arithmetic on ``[K, B]`` slices.)
+    """
+    rel_x = jnp.abs(position[:, 0] - centre[0][None])
+    rel_y = jnp.abs(position[:, 1] - centre[1][None])
+    half_x, half_y = half_extent[0][None], half_extent[1][None]
+    out_x = jnp.maximum(rel_x - half_x, 0.0)
+    out_y = jnp.maximum(rel_y - half_y, 0.0)
+    outside = jnp.sqrt(out_x * out_x + out_y * out_y)
+    return jnp.where(outside > 0.0, outside, -jnp.minimum(half_x - rel_x, half_y - rel_y))
+
+
 def rectangle_signed_distance(
     position: jax.Array,
     centre: jax.Array,
@@ -254,35 +272,35 @@ def rectangle_signed_distance(
       inside: minus the depth below the face it is pushed through); ``float[K, 2, B]``
       unit normal of that boundary, pointing out of the rectangle.
     """
-    rel = position - centre[None]  # [K, 2, B]
-    half = half_extent[None]
+    half_x, half_y = half_extent[0][None], half_extent[1][None]  # [1, B]
+    rel_x = position[:, 0] - centre[0][None]  # [K, B]
+    rel_y = position[:, 1] - centre[1][None]
     # Outside: the vector from the nearest point of the rectangle.
-    outside = rel - jnp.clip(rel, -half, half)
-    outside_dist = jnp.sqrt(jnp.sum(outside * outside, axis=1))
+    out_x = rel_x - jnp.clip(rel_x, -half_x, half_x)
+    out_y = rel_y - jnp.clip(rel_y, -half_y, half_y)
+    outside_dist = jnp.sqrt(out_x * out_x + out_y * out_y)
     inside = outside_dist <= 0.0
-    sign_x = jnp.where(rel[:, 0] >= 0.0, 1.0, -1.0)
-    sign_y = jnp.where(rel[:, 1] >= 0.0, 1.0, -1.0)
+    sign_x = jnp.where(rel_x >= 0.0, 1.0, -1.0)
+    sign_y = jnp.where(rel_y >= 0.0, 1.0, -1.0)
+    shallow_x = half_x - jnp.abs(rel_x) <= half_y - jnp.abs(rel_y)
     if entry is None:
-        # Push out through the shallowest face.
-        through_x = half[:, 0] - jnp.abs(rel[:, 0]) <= half[:, 1] - jnp.abs(rel[:, 1])
+        through_x = shallow_x  # push out through the shallowest face
     else:
-        entry_rel = entry - centre[None]
-        entry_out = entry_rel - jnp.clip(entry_rel, -half, half)
-        known = jnp.sum(entry_out * entry_out, axis=1) > 0.0
-        entry_x = jnp.abs(entry_out[:, 0]) >= jnp.abs(entry_out[:, 1])
-        shallow_x = half[:, 0] - jnp.abs(rel[:, 0]) <= half[:, 1] - jnp.abs(rel[:, 1])
-        through_x = jnp.where(known, entry_x, shallow_x)
-        sign_x = jnp.where(known, jnp.where(entry_rel[:, 0] >= 0.0, 1.0, -1.0), sign_x)
-        sign_y = jnp.where(known, jnp.where(entry_rel[:, 1] >= 0.0, 1.0, -1.0), sign_y)
-    depth_x = half[:, 0] - sign_x * rel[:, 0]  # below the x face on side sign_x
-    depth_y = half[:, 1] - sign_y * rel[:, 1]
-    inside_normal = jnp.stack(
-        [jnp.where(through_x, sign_x, 0.0), jnp.where(through_x, 0.0, sign_y)], axis=1
-    )
+        entry_x = entry[:, 0] - centre[0][None]
+        entry_y = entry[:, 1] - centre[1][None]
+        entry_out_x = jnp.abs(entry_x - jnp.clip(entry_x, -half_x, half_x))
+        entry_out_y = jnp.abs(entry_y - jnp.clip(entry_y, -half_y, half_y))
+        known = entry_out_x + entry_out_y > 0.0
+        through_x = jnp.where(known, entry_out_x >= entry_out_y, shallow_x)
+        sign_x = jnp.where(known, jnp.where(entry_x >= 0.0, 1.0, -1.0), sign_x)
+        sign_y = jnp.where(known, jnp.where(entry_y >= 0.0, 1.0, -1.0), sign_y)
+    depth_x = half_x - sign_x * rel_x  # below the x face on side sign_x
+    depth_y = half_y - sign_y * rel_y
     safe_dist = jnp.where(inside, 1.0, outside_dist)
-    normal = jnp.where(inside[:, None], inside_normal, outside / safe_dist[:, None])
+    normal_x = jnp.where(inside, jnp.where(through_x, sign_x, 0.0), out_x / safe_dist)
+    normal_y = jnp.where(inside, jnp.where(through_x, 0.0, sign_y), out_y / safe_dist)
     distance = jnp.where(inside, -jnp.where(through_x, depth_x, depth_y), outside_dist)
-    return distance, normal
+    return distance, jnp.stack([normal_x, normal_y], axis=1)
 
 
 def rectangle_contact_force(

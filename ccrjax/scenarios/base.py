@@ -96,6 +96,26 @@ def sample_centre(key: jax.Array, layout: Layout, batch: int) -> jax.Array:
     return jax.random.uniform(key, (2, batch), minval=low, maxval=high)
 
 
+def hashed_bits(key: jax.Array, shape: tuple[int, ...]) -> jax.Array:
+    """Uniform ``uint32`` words of ``shape``: a counter-based integer hash seeded from ``key``.
+
+    One 32-bit seed is drawn from ``key`` with JAX's generator; element ``c`` (its
+    flat index) gets ``mix(seed + c * 0x9E3779B9)``, where ``mix`` is a two-round
+    multiply-xorshift finaliser (constants of the "lowbias32" hash), which passes
+    the usual avalanche tests. A fresh key each step gives fresh words. It is for
+    physical noise only (not for anything that needs cryptographic quality) and
+    costs a few integer operations per word instead of threefry's twenty rounds.
+    """
+    seed = jax.random.bits(key, (), jnp.uint32)
+    counter = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
+    x = seed + counter * jnp.uint32(0x9E3779B9)
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
 def unit_vector(fraction: jax.Array) -> jax.Array:
     """``(cos 2 pi u, sin 2 pi u)`` for ``u in [0, 1)``, stacked on a new axis 1.
 
@@ -118,10 +138,18 @@ def unit_vector(fraction: jax.Array) -> jax.Array:
     return jnp.stack([x, y], axis=1)
 
 
+def in_goal_area(position: jax.Array, layout: Layout) -> jax.Array:
+    """``bool[N, B]``: the robot's centre is inside the target area around the destination."""
+    rel_x = position[:, 0] - layout.goal[0]
+    rel_y = position[:, 1] - layout.goal[1]
+    return rel_x * rel_x + rel_y * rel_y < layout.goal_radius**2
+
+
 def distance_to_centre(position: jax.Array, hazard: Hazard) -> jax.Array:
     """``|p_i - c|``: each robot's distance to the hazard's centre, ``float[N, B]``."""
-    rel = position - hazard.centre[None]
-    return jnp.sqrt(jnp.sum(rel * rel, axis=1))
+    rel_x = position[:, 0] - hazard.centre[0][None]
+    rel_y = position[:, 1] - hazard.centre[1][None]
+    return jnp.sqrt(rel_x * rel_x + rel_y * rel_y)
 
 
 class Scenario(abc.ABC):

@@ -35,7 +35,7 @@ from ccrjax.scenarios.base import (
     check_range,
     sample_centre,
 )
-from ccrjax.world import rectangle_contact_force, rectangle_signed_distance
+from ccrjax.world import rectangle_contact_force, rectangle_distance
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,7 +66,7 @@ class HiddenObstacle(Scenario):
 
     def touching(self, hazard: Hazard, position: jax.Array, radius: jax.Array) -> jax.Array:
         """``bool[N, B]``: the robot's disc overlaps the obstacle."""
-        distance, _ = rectangle_signed_distance(position, hazard.centre, hazard.half_extent)
+        distance = rectangle_distance(position, hazard.centre, hazard.half_extent)
         return distance < radius[:, None]
 
     def init_memory(self, hazard: Hazard, position: jax.Array) -> jax.Array:
@@ -74,7 +74,7 @@ class HiddenObstacle(Scenario):
         return position
 
     def update_memory(self, hazard: Hazard, memory: jax.Array, position: jax.Array):
-        distance, _ = rectangle_signed_distance(position, hazard.centre, hazard.half_extent)
+        distance = rectangle_distance(position, hazard.centre, hazard.half_extent)
         # Only points strictly outside are entry points (a point on a face is not).
         return jnp.where((distance <= 0.0)[:, None], memory, position)
 

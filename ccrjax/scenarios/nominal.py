@@ -13,7 +13,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ccrjax.scenarios.base import Hazard, Layout, Scenario, sample_centre
+from ccrjax.scenarios.base import Hazard, Layout, Scenario, in_goal_area, sample_centre
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,8 +37,7 @@ class Nominal(Scenario):
         return jnp.zeros(position[:, 0].shape, bool)
 
     def reached(self, hazard, position, layout):
-        rel = position - jnp.asarray(layout.goal, jnp.float32)[None, :, None]
-        return jnp.sum(rel * rel, axis=1) < layout.goal_radius**2
+        return in_goal_area(position, layout)
 
     def hazard_features(self, hazard, position, radius):
         return jnp.zeros((position.shape[0], 0, position.shape[2]), jnp.float32)

@@ -65,8 +65,9 @@ class StrongWind(Scenario):
         )
 
     def _inside(self, hazard: Hazard, position: jax.Array) -> jax.Array:
-        rel = jnp.abs(position - hazard.centre[None])
-        return jnp.all(rel < hazard.half_extent[None], axis=1)
+        inside_x = jnp.abs(position[:, 0] - hazard.centre[0][None]) < hazard.half_extent[0][None]
+        inside_y = jnp.abs(position[:, 1] - hazard.centre[1][None]) < hazard.half_extent[1][None]
+        return inside_x & inside_y
 
     def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
         wind = self.force * hazard.direction[None]  # [1, 2, B]
