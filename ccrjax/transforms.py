@@ -24,9 +24,9 @@ import math
 from typing import Any, Protocol
 
 import jax
-from brax.envs.base import State as EnvState
 
 from ccrjax.env import CCREnv
+from ccrjax.env import State as EnvState
 
 
 class Transform(Protocol):
@@ -63,13 +63,13 @@ class Plain:
 
 
 @dataclasses.dataclass(frozen=True)
-class Pessimistic:
+class Pessimistic(Plain):
     """The paper's pessimistic baseline: ``r_i - penalty`` on every step robot ``i`` is in danger.
 
     Danger is the environment's own predicate (inside the turbulence or wind
     area, touching the obstacle) at the state the step led to. The paper does not
     give the penalty; the default 1.0 is one unit of distance-to-destination, the
-    size of the environment reward itself.
+    size of the environment reward itself. Observations are the plain ones.
     """
 
     penalty: float = 1.0
@@ -79,15 +79,6 @@ class Pessimistic:
         value = self.penalty
         if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
             raise ValueError(f"penalty must be a finite number >= 0, got {value!r}")
-
-    def extra_obs_size(self, env: CCREnv) -> int:
-        return 0
-
-    def init(self, env: CCREnv) -> tuple:
-        return ()
-
-    def start_episode(self, state, env_state):
-        return state, env_state.obs
 
     def step(self, state, env_state, action, next_env_state):
         reward = next_env_state.reward - self.penalty * next_env_state.metrics["danger"]
