@@ -267,6 +267,9 @@ class CCREnv(Env):
         position, velocity = physics_step(
             world.position, world.velocity, self.radius, force, self.physics
         )
+        position, velocity = self.scenario.constrain(
+            world.hazard, world.hazard_memory, position, velocity, self.radius
+        )
         reached = self.scenario.reached(world.hazard, position, self.layout)
         return world.replace(
             position=position,

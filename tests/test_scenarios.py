@@ -199,7 +199,8 @@ def obstacle_rollout(position, velocity, action, hazard, steps):
     """Centres ``[T, N, 2, B]`` of robots driven by ``action`` against the hidden obstacle.
 
     One step as :meth:`ccrjax.env.CCREnv.advance` takes it: action and obstacle forces
-    (the obstacle's force reads its per-robot memory), the MPE step, the memory update.
+    (the obstacle's force reads its per-robot memory), the MPE step, the obstacle's
+    constraint (a robot that crossed it in one step goes back), the memory update.
     """
     scenario = HiddenObstacle()
     radius = jnp.full((position.shape[0],), 0.05, jnp.float32)
@@ -209,6 +210,7 @@ def obstacle_rollout(position, velocity, action, hazard, steps):
         p, v, memory = carry
         force = applied + scenario.hazard_force(hazard, p, radius, None, PHYSICS, memory)
         p, v = physics_step(p, v, radius, force, PHYSICS)
+        p, v = scenario.constrain(hazard, memory, p, v, radius)
         return (p, v, scenario.update_memory(hazard, memory, p)), p
 
     start = (position, velocity, scenario.init_memory(hazard, position))
@@ -219,13 +221,14 @@ obstacle_rollout_jit = jax.jit(obstacle_rollout, static_argnames="steps")
 
 
 def passed_through(trajectory, centre, half):
-    """Whether a centre ever left the obstacle through its far (+x) face, ``[N, B]``.
+    """Whether a robot ever went through the obstacle from its near (-x) face, ``[N, B]``.
 
-    A step from ``x <= far face`` to ``x > far face`` whose segment crosses the far face's
-    line level with the obstacle (``|y| < half length``). With the obstacle's entry
-    memory a robot may get past the mid-line, up to about 0.35 deep, and still be pushed
-    back out the way it came, and a robot may slide along a face and go around a corner:
-    neither is passing through.
+    Passing through: a step that crosses the far (+x) face's line level with the obstacle
+    (``|y| < half length``) while the last point where the centre was outside the
+    obstacle lay beyond its near face. With the obstacle's entry memory a robot may get
+    past the mid-line, up to about 0.35 deep, and still be pushed back out the way it
+    came; a robot squeezed over a corner (in through the top or bottom face, out through
+    the far one) clips the corner, which a soft wall allows: neither passes through.
     """
     x = trajectory[:, :, 0] - centre[0]  # [T, N, B]
     y = trajectory[:, :, 1] - centre[1]
@@ -233,7 +236,16 @@ def passed_through(trajectory, centre, half):
     crosses = (x0 <= half[0]) & (x1 > half[0])
     step = np.where(crosses, x1 - x0, 1.0)
     y_at_face = y0 + (half[0] - x0) * (y1 - y0) / step
-    return np.any(crosses & (np.abs(y_at_face) < half[1]), axis=0)
+    exits = crosses & (np.abs(y_at_face) < half[1])
+    outside = (np.abs(x) > half[0]) | (np.abs(y) > half[1])
+    result = np.zeros(x.shape[1:], bool)
+    for t, n, b in zip(*np.nonzero(exits), strict=True):
+        before = np.nonzero(outside[: t + 1, n, b])[0]
+        last = before[-1] if len(before) else 0
+        # Came from the near side (not from above or below the obstacle).
+        if x[last, n, b] < -half[0] and abs(y[last, n, b]) - half[1] < -half[0] - x[last, n, b]:
+            result[n, b] = True
+    return result
 
 
 DEFAULT_HALF_THICKNESS = HiddenObstacle().thickness / 2
@@ -308,16 +320,19 @@ def test_obstacle_stops_a_column_of_robots(team):
     assert not passed_through(trajectory, centre, half).any()
 
 
-@pytest.mark.xfail(
-    reason="a team piling into the default (0.6 thick) obstacle at full force still gets "
-    "robots through it: the stiff contact under the MPE's integration order gains energy "
-    "every bounce (update matrix [[1, dt], [-k dt, 1 - damping]], determinant "
-    "0.75 + 100 * 0.01 = 1.75 > 1), robots in the pile bounce off the wall and each other "
-    "at up to about 8 units/s, and one that moves more than the half thickness in a step "
-    "is pushed out of the far side",
-    raises=AssertionError,
-    strict=True,
-)
+def test_obstacle_returns_a_robot_that_jumps_over_it_in_one_step():
+    # 9 units/s: 0.9 per step, more than the 0.6-thick wall; the contact force never acts.
+    centre, half = (0.0, 0.0), (DEFAULT_HALF_THICKNESS, 0.5)
+    position = jnp.array([[[-DEFAULT_HALF_THICKNESS - 0.1], [0.0]]], jnp.float32)
+    velocity = jnp.array([[[9.0], [0.0]]], jnp.float32)
+    action = jnp.zeros_like(position)
+    trajectory = np.asarray(
+        obstacle_rollout_jit(position, velocity, action, make_hazard(centre, half), steps=5)
+    )
+    assert not passed_through(trajectory, centre, half).any()
+    assert np.all(trajectory[:, 0, 0, 0] < -DEFAULT_HALF_THICKNESS)
+
+
 def test_obstacle_stops_a_pile_of_robots():
     # 64 environments of 16 robots (the environment allows 2 to 64), at rest, not touching,
     # 0.5 to 1.0 in front of a default obstacle, all driving +x at full force for 20 s.

@@ -191,6 +191,18 @@ class Scenario(abc.ABC):
         del hazard, position
         return memory
 
+    def constrain(
+        self, hazard: Hazard, memory: jax.Array, position: jax.Array, velocity: jax.Array,
+        radius: jax.Array,
+    ) -> tuple[jax.Array, jax.Array]:
+        """Position and velocity after the physics step, corrected if the hazard forbids them.
+
+        Nothing by default; the hidden obstacle returns a robot that crossed it in one
+        step to the face it came in through. ``memory`` is the one before the step.
+        """
+        del hazard, memory, radius
+        return position, velocity
+
     @abc.abstractmethod
     def hazard_force(
         self, hazard: Hazard, position: jax.Array, radius: jax.Array, noise: jax.Array,
