@@ -104,16 +104,9 @@ class HiddenObstacle(Scenario):
         crossed_y = outside_before & ~through_x & beyond_y
         face_x = centre[0][None] + side_x * (half[0][None] + radius[:, None])
         face_y = centre[1][None] + side_y * (half[1][None] + radius[:, None])
-        position = jnp.stack(
-            [jnp.where(crossed_x, face_x, position[:, 0]),
-             jnp.where(crossed_y, face_y, position[:, 1])],
-            axis=1,
-        )
-        velocity = jnp.stack(
-            [jnp.where(crossed_x, 0.0, velocity[:, 0]),
-             jnp.where(crossed_y, 0.0, velocity[:, 1])],
-            axis=1,
-        )
+        crossed = jnp.stack([crossed_x, crossed_y], axis=1)  # [N, 2, B]
+        position = jnp.where(crossed, jnp.stack([face_x, face_y], axis=1), position)
+        velocity = jnp.where(crossed, 0.0, velocity)
         return position, velocity
 
     def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
