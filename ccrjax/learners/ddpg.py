@@ -63,7 +63,7 @@ class DDPGConfig:
     grad_clip: float = 0.5
     actor_regulariser: float = 1e-3
     # Gaussian noise on the tanh action; 0.1 left robots short of the goal at 200k
-    # steps (success 0.4), 0.3 explored enough (0.8 at the same budget).
+    # steps (success 0.40), 0.3 explored enough (0.82 at 175k, 0.74 at 200k).
     exploration_noise: float = 0.3
     update_every: int = 100  # environment steps per update
     gradient_steps: int = 1  # updates each time
