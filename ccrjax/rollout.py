@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from ccrjax.env import CCREnv
+from ccrjax.scenarios import Hazard
 from ccrjax.learners.base import Transition
 from ccrjax.transforms import Transform
 
@@ -37,7 +38,9 @@ class Episode:
     ``transitions``: batch-major learner transitions, leaves ``[T, E, ...]``, with the
     transformed rewards; the remaining fields are the environment's own, batch-last:
     ``env_reward``, ``danger``, ``success``, ``hazard_distance``: ``[T, N, E]``;
-    ``position``: ``[T + 1, N, 2, E]`` (start included).
+    ``position``: ``[T + 1, N, 2, E]`` (start included); ``hazard``: the episode's
+    hazards (leaves ``[2, E]``); ``info``: the transform's per-step diagnostics,
+    leaves ``[T, N, E]`` (empty for plain and pessimistic).
     """
 
     transitions: Transition
@@ -46,6 +49,8 @@ class Episode:
     success: jax.Array
     hazard_distance: jax.Array
     position: jax.Array
+    hazard: Hazard
+    info: dict[str, jax.Array]
 
 
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs [E, N, F], key) -> action
@@ -69,7 +74,7 @@ def run_episode(
         obs_bm = to_batch_major_obs(obs)
         action = act(obs_bm, step_key)
         next_env_state = env.transition(env_state, to_env_action(action, discrete))
-        transform_state, next_obs, reward = transform.step(
+        transform_state, next_obs, reward, info = transform.step(
             transform_state, env_state, to_env_action(action, discrete), next_env_state
         )
         transition = Transition(
@@ -86,6 +91,7 @@ def run_episode(
             next_env_state.metrics["success"],
             next_env_state.metrics["hazard_distance"],
             next_env_state.pipeline_state.position,
+            info,
         )
         return (next_env_state, transform_state, next_obs), outputs
 
@@ -93,7 +99,7 @@ def run_episode(
     (_, transform_state, _), outputs = jax.lax.scan(
         one_step, (env_state, transform_state, obs), step_keys
     )
-    transitions, env_reward, danger, success, hazard_distance, position = outputs
+    transitions, env_reward, danger, success, hazard_distance, position, info = outputs
     position = jnp.concatenate([env_state.pipeline_state.position[None], position], axis=0)
     return transform_state, Episode(
         transitions=transitions,
@@ -102,6 +108,8 @@ def run_episode(
         success=success,
         hazard_distance=hazard_distance,
         position=position,
+        hazard=env_state.pipeline_state.hazard,
+        info=info,
     )
 
 

@@ -183,6 +183,7 @@ class TrainState:
     buffer: ReplayBuffer
     transform: Any
     key: jax.Array
+    eval_key: jax.Array  # evaluation point k uses fold_in(eval_key, k)
     iteration: jax.Array  # int32[]
     env_steps: jax.Array  # int32[]
     updates: jax.Array  # int32[]
@@ -207,8 +208,15 @@ class TrainProgram:
         self.obs_size = self.env.observation_size + self.transform.extra_obs_size(self.env)
 
     # ------------------------------------------------------------------ state
-    def init(self, key: jax.Array) -> TrainState:
-        learner_key, key = jax.random.split(key)
+    def default_transform_params(self) -> dict[str, float]:
+        """The transform's per-run numbers (penalty, lambda) as the configuration sets them."""
+        return self.transform.default_params()
+
+    def init(self, key: jax.Array, transform_params: dict[str, Any] | None = None) -> TrainState:
+        """A fresh run. ``transform_params`` overrides the configuration's per-run numbers of
+        the transform (e.g. ``{"lam": 10.0}``); they may be traced, so that ``jax.vmap``
+        over them runs several values in one program."""
+        learner_key, eval_key, key = jax.random.split(key, 3)
         n, f = self.config.num_robots, self.obs_size
         action = (
             jnp.zeros((n,), jnp.int32) if self.learner.discrete else jnp.zeros((n, 2), jnp.float32)
@@ -223,8 +231,9 @@ class TrainProgram:
         return TrainState(
             learner=self.learner.init(learner_key, n, f),
             buffer=init_replay(example, self.config.replay_capacity),
-            transform=self.transform.init(self.env),
+            transform=self.transform.init(self.env, transform_params),
             key=key,
+            eval_key=eval_key,
             iteration=jnp.zeros((), jnp.int32),
             env_steps=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
@@ -334,28 +343,46 @@ class TrainProgram:
         """Evaluations after the first: one per chunk of ``iterations_per_eval`` iterations."""
         return self.config.num_iterations // self.config.iterations_per_eval
 
-    def train(self, key: jax.Array) -> tuple[TrainState, dict[str, jax.Array]]:
+    def evaluation_point(self, state: TrainState) -> dict[str, jax.Array]:
+        """The four metrics of :meth:`evaluate` at ``state``, with ``env_steps`` and
+        ``cumulative_danger_steps``. Point ``k`` (after ``k`` chunks) evaluates with
+        ``fold_in(state.eval_key, k)``, so a run cut into chunks evaluates exactly as
+        :meth:`train` does."""
+        index = state.iteration // self.config.iterations_per_eval
+        return {
+            **self.evaluate(state, jax.random.fold_in(state.eval_key, index)),
+            "env_steps": state.env_steps,
+            "cumulative_danger_steps": state.danger_steps,
+        }
+
+    def chunk(self, state: TrainState) -> tuple[TrainState, dict, dict]:
+        """``iterations_per_eval`` iterations, then an evaluation point.
+
+        Returns the state, the evaluation point and the chunk's training metrics
+        (means over its iterations of the training episodes' metrics and the
+        learner's losses). This is the unit the train command compiles, runs,
+        logs and checkpoints.
+        """
+        state, metrics = self.run(state, self.config.iterations_per_eval)
+        training = jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), metrics)
+        return state, self.evaluation_point(state), training
+
+    def train(
+        self, key: jax.Array, transform_params: dict[str, Any] | None = None
+    ) -> tuple[TrainState, dict[str, jax.Array]]:
         """The whole run: an evaluation at the start and after every ``eval_every`` steps.
 
         Returns the final state and the evaluation history, leaves ``[num_evaluations + 1]``
         (with ``env_steps`` and ``cumulative_danger_steps`` at each point).
         """
-        eval_key, key = jax.random.split(key)
-        state = self.init(key)
+        state = self.init(key, transform_params)
+        first = self.evaluation_point(state)
 
-        def point(state, key):
-            return {
-                **self.evaluate(state, key),
-                "env_steps": state.env_steps,
-                "cumulative_danger_steps": state.danger_steps,
-            }
+        def one_chunk(state, _):
+            state, point, _ = self.chunk(state)
+            return state, point
 
-        def one_chunk(state, index):
-            state, _ = self.run(state, self.config.iterations_per_eval)
-            return state, point(state, jax.random.fold_in(eval_key, index + 1))
-
-        first = point(state, jax.random.fold_in(eval_key, 0))
-        state, history = jax.lax.scan(one_chunk, state, jnp.arange(self.num_evaluations))
+        state, history = jax.lax.scan(one_chunk, state, None, length=self.num_evaluations)
         history = jax.tree_util.tree_map(
             lambda a, b: jnp.concatenate([a[None], b]), first, history
         )

@@ -12,9 +12,19 @@ All arrays are in the environment's layout (batch axis last): observations
 Interface (pure functions; ``state`` is the transform's own pytree)::
 
     extra_obs_size(env) -> int
-    init(env) -> state                                  # once per training run
+    default_params() -> dict[str, float]               # per-run numbers, may be traced
+    init(env, params) -> state                         # once per training run
     start_episode(state, env_state) -> (state, obs)    # after env.reset
-    step(state, env_state, action, next_env_state) -> (state, obs, reward)
+    step(state, env_state, action, next_env_state) -> (state, obs, reward, info)
+
+``params`` holds the transform's numeric hyperparameters (the pessimistic
+penalty, CCR's lambda) as arrays inside the state, so that one compiled program
+can run several values side by side under ``jax.vmap``. ``info`` is a dict of
+per-robot diagnostics ``[N, E]`` of the step (empty for plain and pessimistic;
+CCR reports its emergency scores, intrinsic rewards and robot states). A
+transform's state must not depend on the number of environments ``E``, so that
+training and evaluation (which run different batches) share it: per-episode
+arrays are created by ``start_episode``.
 """
 
 from __future__ import annotations
@@ -24,6 +34,7 @@ import math
 from typing import Any, Protocol
 
 import jax
+import jax.numpy as jnp
 
 from ccrjax.env import CCREnv
 from ccrjax.env import State as EnvState
@@ -34,13 +45,27 @@ class Transform(Protocol):
 
     def extra_obs_size(self, env: CCREnv) -> int: ...
 
-    def init(self, env: CCREnv) -> Any: ...
+    def default_params(self) -> dict[str, float]: ...
+
+    def init(self, env: CCREnv, params: dict[str, Any]) -> Any: ...
 
     def start_episode(self, state: Any, env_state: EnvState) -> tuple[Any, jax.Array]: ...
 
     def step(
         self, state: Any, env_state: EnvState, action: jax.Array, next_env_state: EnvState
-    ) -> tuple[Any, jax.Array, jax.Array]: ...
+    ) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]: ...
+
+
+def as_params(defaults: dict[str, float], params: dict[str, Any] | None) -> dict[str, jax.Array]:
+    """``params`` completed from ``defaults`` as float32 arrays; unknown names are refused."""
+    params = dict(params or {})
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ValueError(
+            f"unknown transform parameter(s) {unknown}; this transform takes {sorted(defaults)}"
+        )
+    return {name: jnp.asarray(params.get(name, value), jnp.float32)
+            for name, value in defaults.items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,14 +77,17 @@ class Plain:
     def extra_obs_size(self, env: CCREnv) -> int:
         return 0
 
-    def init(self, env: CCREnv) -> tuple:
-        return ()
+    def default_params(self) -> dict[str, float]:
+        return {}
+
+    def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> dict[str, jax.Array]:
+        return as_params(self.default_params(), params)
 
     def start_episode(self, state, env_state):
         return state, env_state.obs
 
     def step(self, state, env_state, action, next_env_state):
-        return state, next_env_state.obs, next_env_state.reward
+        return state, next_env_state.obs, next_env_state.reward, {}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +98,9 @@ class Pessimistic(Plain):
     area, touching the obstacle) at the state the step led to. The paper does not
     give the penalty; the default 1.0 is one unit of distance-to-destination, the
     size of the environment reward itself. Observations are the plain ones.
+    ``penalty`` is the default of the run parameter of the same name, which
+    :meth:`init` may override with a (possibly traced) value; penalty 0 is
+    exactly the plain learner.
     """
 
     penalty: float = 1.0
@@ -80,6 +111,9 @@ class Pessimistic(Plain):
         if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
             raise ValueError(f"penalty must be a finite number >= 0, got {value!r}")
 
+    def default_params(self) -> dict[str, float]:
+        return {"penalty": float(self.penalty)}
+
     def step(self, state, env_state, action, next_env_state):
-        reward = next_env_state.reward - self.penalty * next_env_state.metrics["danger"]
-        return state, next_env_state.obs, reward
+        reward = next_env_state.reward - state["penalty"] * next_env_state.metrics["danger"]
+        return state, next_env_state.obs, reward, {}

@@ -45,7 +45,7 @@ def test_pessimistic_subtracts_the_penalty_exactly_on_danger_steps():
     transform = Pessimistic(penalty=2.5)
     saw_danger = saw_safe = False
     for state, action, next_state in states:
-        _, obs, reward = transform.step((), state, action, next_state)
+        _, obs, reward, _ = transform.step(transform.init(env), state, action, next_state)
         danger = np.asarray(next_state.metrics["danger"]) > 0
         env_reward = np.asarray(next_state.reward)
         np.testing.assert_array_equal(np.asarray(reward)[danger], env_reward[danger] - 2.5)
@@ -59,7 +59,7 @@ def test_pessimistic_subtracts_the_penalty_exactly_on_danger_steps():
 def test_plain_changes_nothing():
     env, states = stepped_states("strong_wind")
     state, action, next_state = states[3]
-    _, obs, reward = Plain().step((), state, action, next_state)
+    _, obs, reward, _ = Plain().step({}, state, action, next_state)
     np.testing.assert_array_equal(reward, next_state.reward)
     np.testing.assert_array_equal(obs, next_state.obs)
 
