@@ -142,6 +142,49 @@ class TrainConfig:
         return self.learner_config.batch_size * self.episode_length
 
 
+def _nested_config_types() -> dict[str, type]:
+    """The fields of :class:`TrainConfig` that hold a configuration dataclass, and its type."""
+    from ccrjax.learners.maac import MAACConfig
+
+    types: dict[str, type] = {"maac": MAACConfig}
+    for field in dataclasses.fields(TrainConfig):
+        default = field.default
+        if default is dataclasses.MISSING and field.default_factory is not dataclasses.MISSING:
+            default = field.default_factory()
+        if dataclasses.is_dataclass(default):
+            types[field.name] = type(default)
+    return types
+
+
+def config_to_dict(config: TrainConfig) -> dict[str, Any]:
+    """Every field of ``config``, nested configurations included, as JSON-ready values."""
+    return dataclasses.asdict(config)
+
+
+def _tuples(value: Any) -> Any:
+    if isinstance(value, list):
+        return tuple(_tuples(v) for v in value)
+    if isinstance(value, dict):
+        return {k: _tuples(v) for k, v in value.items()}
+    return value
+
+
+def config_from_dict(data: dict[str, Any]) -> TrainConfig:
+    """The inverse of :func:`config_to_dict` (JSON lists become tuples); validates."""
+    nested = _nested_config_types()
+    names = {field.name for field in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"unknown TrainConfig field(s) {unknown}")
+    values = {}
+    for name, value in data.items():
+        value = _tuples(value)
+        if name in nested and isinstance(value, dict):
+            value = nested[name](**value)
+        values[name] = value
+    return TrainConfig(**values)
+
+
 def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
     return CCREnv(
         config.scenario,
@@ -355,16 +398,31 @@ class TrainProgram:
             "cumulative_danger_steps": state.danger_steps,
         }
 
-    def chunk(self, state: TrainState) -> tuple[TrainState, dict, dict]:
+    def chunk(
+        self, state: TrainState, train: bool | jax.Array = True
+    ) -> tuple[TrainState, dict, dict]:
         """``iterations_per_eval`` iterations, then an evaluation point.
 
         Returns the state, the evaluation point and the chunk's training metrics
         (means over its iterations of the training episodes' metrics and the
         learner's losses). This is the unit the train command compiles, runs,
-        logs and checkpoints.
+        logs and checkpoints. ``train=False`` (a traced flag is fine, but keep it
+        unbatched under ``vmap``) skips the iterations and only evaluates: the
+        command's first evaluation, without compiling a second program.
         """
-        state, metrics = self.run(state, self.config.iterations_per_eval)
-        training = jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), metrics)
+
+        def iterations(state):
+            state, metrics = self.run(state, self.config.iterations_per_eval)
+            return state, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), metrics)
+
+        def no_iterations(state):
+            _, metrics = jax.eval_shape(iterations, state)
+            return state, jax.tree_util.tree_map(lambda m: jnp.zeros(m.shape, m.dtype), metrics)
+
+        if isinstance(train, bool):
+            state, training = (iterations if train else no_iterations)(state)
+        else:
+            state, training = jax.lax.cond(train, iterations, no_iterations, state)
         return state, self.evaluation_point(state), training
 
     def train(

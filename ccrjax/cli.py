@@ -1,0 +1,194 @@
+"""What the commands (``train``, ``evaluate``, ``sweep``, ``demo``) share on the command line.
+
+* :class:`Parser`: argparse whose mistakes are one line on stderr and exit status 2;
+* :class:`UsageError` and :func:`fail`: the same one line for mistakes found later
+  (a configuration value out of range, a folder that cannot be used);
+* typed converters that name what is allowed (``positive_int``, ``unit_float`` ...);
+* :func:`add_dataclass_options` / :func:`dataclass_overrides`: one option per field of a
+  frozen configuration dataclass (``--ddpg-actor-lr``), so ``--help`` lists every
+  hyperparameter with its default and nothing has to be kept in sync by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+import typing
+from collections.abc import Callable, Iterable
+from typing import Any, NoReturn
+
+USAGE_ERROR = 2
+
+
+class UsageError(Exception):
+    """A mistake of the user's: reported as one line, exit status 2, no traceback."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr, exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
+
+
+def fail(prog: str, message: str, status: int = USAGE_ERROR) -> NoReturn:
+    """Prints ``prog: error: message`` (one line) to stderr and exits with ``status``."""
+    print(f"{prog}: error: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+    raise SystemExit(status)
+
+
+def _number(text: str, kind: type) -> Any:
+    try:
+        value = kind(text)
+    except ValueError:
+        what = "an integer" if kind is int else "a number"
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+    if kind is float and not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return value
+
+
+def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """A converter to an integer in ``[low, high]`` (``high=None``: no upper bound)."""
+
+    def convert(text: str) -> int:
+        value = _number(text, int)
+        if value < low or (high is not None and value > high):
+            allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
+            raise argparse.ArgumentTypeError(f"must be an integer {allowed}, got {value}")
+        return value
+
+    return convert
+
+
+def float_in(low: float, high: float | None = None, *, low_open: bool = False,
+             high_open: bool = False) -> Callable[[str], float]:
+    """A converter to a finite float in the given interval."""
+
+    def convert(text: str) -> float:
+        value = _number(text, float)
+        ok = value > low if low_open else value >= low
+        if high is not None:
+            ok = ok and (value < high if high_open else value <= high)
+        if not ok:
+            left = "(" if low_open else "["
+            right = (")" if high_open else "]") if high is not None else ")"
+            upper = high if high is not None else "inf"
+            raise argparse.ArgumentTypeError(f"must be in {left}{low}, {upper}{right}, got {text}")
+        return value
+
+    return convert
+
+
+positive_int = int_in(1)
+non_negative_int = int_in(0)
+positive_float = float_in(0.0, low_open=True)
+non_negative_float = float_in(0.0)
+seed_int = int_in(0, 2**31 - 1)
+
+
+def int_tuple(text: str) -> tuple[int, ...]:
+    """``"64,64"`` to ``(64, 64)``: layer widths, each an integer > 0."""
+    try:
+        values = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be comma-separated integers such as 64,64, got {text!r}"
+        ) from None
+    if not values or any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"must be integers > 0, got {text!r}")
+    return values
+
+
+def boolean(text: str) -> bool:
+    lowered = text.lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"must be true or false, got {text!r}")
+
+
+def _converter(annotation: Any, default: Any) -> tuple[Callable[[str], Any], str]:
+    """The converter and metavar for a dataclass field of type ``annotation``."""
+    kind = typing.get_origin(annotation) or annotation
+    if kind not in (bool, int, float, tuple):
+        kind = type(default)
+    if kind is bool:
+        return boolean, "BOOL"
+    if kind is int:
+        return (lambda text: _number(text, int)), "INT"
+    if kind is float:
+        return (lambda text: _number(text, float)), "X"
+    if kind is tuple:
+        return int_tuple, "W1,W2"
+    raise TypeError(f"no command-line type for {annotation!r}")
+
+
+def add_dataclass_options(
+    parser: argparse.ArgumentParser, cls: type, prefix: str, title: str,
+    exclude: Iterable[str] = (),
+) -> None:
+    """Adds ``--<prefix>-<field>`` for every field of the dataclass ``cls`` (defaults shown).
+
+    Values are only converted here; the dataclass validates them when it is built.
+    The options default to ``None`` (= keep the dataclass default), so a run's
+    configuration records only what was asked for on top of the defaults.
+    """
+    group = parser.add_argument_group(title)
+    hints = typing.get_type_hints(cls)
+    for field in dataclasses.fields(cls):
+        if field.name in exclude:
+            continue
+        default = field.default
+        convert, metavar = _converter(hints.get(field.name, field.type), default)
+        shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+        group.add_argument(
+            f"--{prefix}-{field.name.replace('_', '-')}",
+            dest=f"{prefix}__{field.name}",
+            type=convert,
+            default=None,
+            metavar=metavar,
+            help=f"(default: {shown})",
+        )
+
+
+def dataclass_overrides(args: argparse.Namespace, prefix: str) -> dict[str, Any]:
+    """The fields given on the command line for options added with ``prefix``."""
+    head = f"{prefix}__"
+    return {
+        name[len(head):]: value
+        for name, value in vars(args).items()
+        if name.startswith(head) and value is not None
+    }
+
+
+def default_cache_dir() -> str:
+    """``$XDG_CACHE_HOME/ccrjax/xla`` (``~/.cache/ccrjax/xla`` by default)."""
+    import os
+
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "ccrjax", "xla")
+
+
+def enable_compilation_cache(directory: str | None) -> None:
+    """Keeps compiled programs on disk, so a run with the same shapes (a resumed run, the
+    next seed batch, a re-run) starts in seconds instead of compiling for a minute.
+
+    ``None`` leaves JAX's own setting (e.g. ``JAX_COMPILATION_CACHE_DIR``) alone. A cached
+    program is the same executable, so results are identical with or without the cache.
+    A folder that cannot be created just means no cache.
+    """
+    import os
+
+    import jax
+
+    if directory is None or jax.config.jax_compilation_cache_dir:
+        return
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError:
+        return
+    jax.config.update("jax_compilation_cache_dir", directory)

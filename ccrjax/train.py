@@ -1,0 +1,634 @@
+"""``python -m ccrjax.train``: train a team of robots and leave a run folder behind.
+
+::
+
+    python -m ccrjax.train --scenario hidden_obstacle --algo maddpg --variant ccr --seeds 3
+    python -m ccrjax.train --out runs/my-run --resume        # continue a stopped run
+    python -m ccrjax.evaluate runs/my-run                    # fresh episodes of the result
+
+All ``--seeds`` seeds train at once in one compiled program (``jax.vmap`` over the
+training program of :mod:`ccrjax.training`). Python drives the outside: it runs
+the program one chunk at a time (``--eval-every`` environment steps, then an
+evaluation), writes each evaluation to ``metrics.csv`` and TensorBoard, saves
+checkpoints, and draws the pictures at the end (:mod:`ccrjax.run_folder` lists
+the folder's files).
+
+A run stopped at any moment (Ctrl-C, SIGTERM, even SIGKILL) and resumed with
+``--resume`` ends with exactly the same parameters and metrics as the same run
+never interrupted: the whole state, random keys included, is in the checkpoint,
+and the same compiled chunk runs from it. Ctrl-C and SIGTERM save a checkpoint
+before exiting. Mistakes on the command line get one line and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from ccrjax import cli
+from ccrjax.cli import UsageError
+
+PROG = "python -m ccrjax.train"
+SCENARIO_NAMES = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
+ALGO_NAMES = ("iddpg", "maddpg", "maac")
+VARIANT_NAMES = ("plain", "pessimistic", "ccr")
+INTERRUPTED = 130  # the shell's status for a run stopped by Ctrl-C
+NONFINITE = 1
+# Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
+PICTURE_KEY = 0x9E3779B1
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """A training run: the per-seed configuration and how the run is driven."""
+
+    train: Any  # TrainConfig
+    seeds: int = 1
+    seed_offset: int = 0
+    checkpoint_every: int = 100_000  # environment steps per seed between checkpoints
+    keep_checkpoints: int = 2
+
+    def __post_init__(self) -> None:
+        for name, low in (("seeds", 1), ("seed_offset", 0), ("checkpoint_every", 1),
+                          ("keep_checkpoints", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if self.seed_offset + self.seeds > 2**31:
+            raise ValueError("seed_offset + seeds must stay below 2**31")
+
+    @property
+    def seed_list(self) -> list[int]:
+        return [self.seed_offset + k for k in range(self.seeds)]
+
+    @property
+    def chunks_per_checkpoint(self) -> int:
+        return max(1, round(self.checkpoint_every / self.train.eval_every))
+
+    def to_dict(self) -> dict[str, Any]:
+        from ccrjax.training import config_to_dict
+
+        return {
+            "seeds": self.seeds,
+            "seed_offset": self.seed_offset,
+            "checkpoint_every": self.checkpoint_every,
+            "keep_checkpoints": self.keep_checkpoints,
+            "train": config_to_dict(self.train),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunSpec:
+        from ccrjax.training import config_from_dict
+
+        data = dict(data)
+        return cls(train=config_from_dict(data.pop("train")), **data)
+
+
+# ---------------------------------------------------------------------------- command line
+def build_parser() -> argparse.ArgumentParser:
+    from ccrjax.learners.ddpg import DDPGConfig
+    from ccrjax.learners.maac import MAACConfig
+    from ccrjax.training import DEFAULT_BUDGET
+
+    parser = cli.Parser(
+        prog=PROG,
+        description="Train a robot team (IDDPG, MADDPG or MAAC; plain, pessimistic or CCR) "
+        "on one emergency scenario, all seeds at once, into a run folder.",
+        epilog="Every option left out keeps its default; with --resume, the run's own "
+        "configuration (config.json) is used and options that contradict it are refused.",
+    )
+    run = parser.add_argument_group("the run")
+    run.add_argument("--scenario", choices=SCENARIO_NAMES, default=None,
+                     help="emergency scenario (default: hidden_obstacle)")
+    run.add_argument("--algo", choices=ALGO_NAMES, default=None,
+                     help="learner (default: maddpg)")
+    run.add_argument("--variant", choices=VARIANT_NAMES, default=None,
+                     help="plain learner, the pessimistic baseline, or CCR (default: plain)")
+    run.add_argument("--lam", type=cli.non_negative_float, default=None,
+                     help="CCR: weight lambda of the intrinsic reward (default: 30)")
+    run.add_argument("--penalty", type=cli.non_negative_float, default=None,
+                     help="pessimistic: reward lowered on every dangerous step (default: 1.0)")
+    run.add_argument("--seeds", type=cli.int_in(1, 1024), default=None,
+                     help="number of seeds, trained at once in one program (default: 1)")
+    run.add_argument("--seed-offset", type=cli.seed_int, default=None,
+                     help="first seed; the seeds are offset .. offset + seeds - 1 (default: 0)")
+    budget = ", ".join(f"{v:,} for {k}" for k, v in DEFAULT_BUDGET.items())
+    run.add_argument("--steps", type=cli.positive_int, default=None,
+                     help=f"environment steps per seed (default: {budget})")
+    run.add_argument("--num-envs", type=cli.int_in(1, 65536), default=None,
+                     help="training environments per seed (default: 8)")
+    run.add_argument("--robots", type=cli.int_in(2, 64), default=None,
+                     help="team size (default: 5)")
+    run.add_argument("--episode-length", type=cli.int_in(1, 10_000), default=None,
+                     help="steps per episode (default: 50)")
+    run.add_argument("--eval-every", type=cli.positive_int, default=None,
+                     help="environment steps per seed between evaluations (default: 20000)")
+    run.add_argument("--eval-episodes", type=cli.int_in(1, 65536), default=None,
+                     help="fresh episodes per evaluation and seed (default: 64)")
+    run.add_argument("--learning-starts", type=cli.non_negative_int, default=None,
+                     help="transitions stored before updates begin "
+                     "(default: batch size x episode length)")
+
+    folder = parser.add_argument_group("the run folder")
+    folder.add_argument("--out", type=Path, default=None,
+                        help="run folder (default: runs/<scenario>-<algo>-<variant>-<time>)")
+    folder.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its latest checkpoint")
+    folder.add_argument("--checkpoint-every", type=cli.positive_int, default=None,
+                        help="environment steps per seed between checkpoints, rounded to "
+                        "whole evaluation intervals (default: 100000)")
+    folder.add_argument("--keep-checkpoints", type=cli.int_in(1, 1000), default=None,
+                        help="how many of the latest checkpoints to keep (default: 2)")
+    folder.add_argument("--no-progress", action="store_true",
+                        help="one line per evaluation instead of a progress bar")
+    folder.add_argument("--compilation-cache", default=cli.default_cache_dir(), metavar="DIR",
+                        help="where compiled programs are kept, so that a resumed or repeated "
+                        "run starts in seconds (default: %(default)s)")
+    folder.add_argument("--no-compilation-cache", action="store_true",
+                        help="compile from scratch and keep nothing")
+
+    cli.add_dataclass_options(parser, DDPGConfig, "ddpg", "IDDPG / MADDPG hyperparameters",
+                              exclude=("centralised_critic",))
+    cli.add_dataclass_options(parser, MAACConfig, "maac", "MAAC hyperparameters")
+    ccr_config = _ccr_config_type()
+    if ccr_config is not None:
+        cli.add_dataclass_options(parser, ccr_config, "ccr", "CCR parameters", exclude=("lam",))
+    return parser
+
+
+def _ccr_config_type() -> type | None:
+    from ccrjax.training import _nested_config_types
+
+    return _nested_config_types().get("ccr")
+
+
+def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
+    """The run the command line asks for: ``base`` (a resumed run's, or the defaults) with
+    every option given on top. Raises ``ValueError`` for values the configuration refuses."""
+    from ccrjax.training import TrainConfig
+
+    train = base.train if base is not None else TrainConfig(scenario="hidden_obstacle")
+    fields: dict[str, Any] = {}
+    for option, field in (("scenario", "scenario"), ("algo", "algo"), ("variant", "variant"),
+                          ("penalty", "penalty"), ("num_envs", "num_envs"),
+                          ("robots", "num_robots"), ("episode_length", "episode_length"),
+                          ("eval_every", "eval_every"), ("eval_episodes", "eval_episodes"),
+                          ("learning_starts", "learning_starts")):
+        value = getattr(args, option)
+        if value is not None:
+            fields[field] = value
+    algo = fields.get("algo", train.algo)
+    variant = fields.get("variant", train.variant)
+    if args.steps is not None:
+        fields["total_env_steps"] = args.steps
+    elif "algo" in fields and fields["algo"] != train.algo:
+        fields["total_env_steps"] = None  # the new learner's default budget
+    if "algo" in fields and fields["algo"] != train.algo:
+        fields["maac"] = None
+
+    ddpg, maac = cli.dataclass_overrides(args, "ddpg"), cli.dataclass_overrides(args, "maac")
+    if ddpg and algo == "maac":
+        raise UsageError("--ddpg-* options apply to --algo iddpg and maddpg, not maac")
+    if maac and algo != "maac":
+        raise UsageError(f"--maac-* options apply to --algo maac, not {algo}")
+    if args.penalty is not None and variant != "pessimistic":
+        raise UsageError(f"--penalty applies to --variant pessimistic, not {variant}")
+    ccr = cli.dataclass_overrides(args, "ccr")
+    if args.lam is not None:
+        ccr["lam"] = args.lam
+    if ccr and variant != "ccr":
+        given = "--lam" if args.lam is not None else "--ccr-* options"
+        raise UsageError(f"{given} apply to --variant ccr, not {variant}")
+    if ddpg:
+        fields["ddpg"] = dataclasses.replace(train.ddpg, **ddpg)
+    if maac:
+        from ccrjax.learners.maac import MAACConfig
+
+        current = fields.get("maac", train.maac) or MAACConfig()
+        fields["maac"] = dataclasses.replace(current, **maac)
+    if ccr:
+        fields["ccr"] = dataclasses.replace(train.ccr, **ccr)
+    train = dataclasses.replace(train, **fields)
+
+    run_fields = {}
+    for option in ("seeds", "seed_offset", "checkpoint_every", "keep_checkpoints"):
+        value = getattr(args, option)
+        if value is not None:
+            run_fields[option] = value
+    if base is None:
+        return RunSpec(train=train, **run_fields)
+    return dataclasses.replace(base, train=train, **run_fields)
+
+
+def differences(saved: dict[str, Any], asked: dict[str, Any], prefix: str = "") -> list[str]:
+    """``name: saved -> asked`` for every entry that differs (nested dicts flattened)."""
+    lines = []
+    for key in sorted(set(saved) | set(asked)):
+        a, b = saved.get(key), asked.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            lines += differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            lines.append(f"{prefix}{key} is {a!r} in the run, {b!r} here")
+    return lines
+
+
+# ---------------------------------------------------------------------------- the folder
+def check_writable(path: Path) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as error:
+        reason = error.strerror or str(error)
+        raise UsageError(f"cannot write to the run folder {path}: {reason}") from None
+
+
+def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
+    """Checks the run folder against the command and returns it, the run, and (resuming)
+    the saved configuration record."""
+    from ccrjax.run_folder import RunFolder, timestamp
+
+    if args.resume and args.out is None:
+        raise UsageError("--resume needs --out: the folder of the run to continue")
+    if args.out is None:
+        spec = resolve(args, None)
+        name = f"{spec.train.scenario}-{spec.train.algo}-{spec.train.variant}-{timestamp()}"
+        args.out = Path("runs") / name
+    folder = RunFolder(args.out)
+    if args.resume:
+        if not folder.holds_run():
+            raise UsageError(f"--resume: {folder.path} holds no run (no config.json)")
+        try:
+            record = folder.read_config()
+            saved = RunSpec.from_dict(record["run"])
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            raise UsageError(f"--resume: cannot read {folder.config_path}: {error}") from None
+        spec = resolve(args, saved)
+        changed = differences(saved.to_dict(), spec.to_dict())
+        if changed:
+            raise UsageError(
+                f"--resume: options contradict the run in {folder.path} ("
+                + "; ".join(changed) + "); a run resumes with its own configuration"
+            )
+        check_writable(folder.path)
+        return folder, spec, record
+    spec = resolve(args, None)
+    if folder.holds_run():
+        raise UsageError(
+            f"{folder.path} already holds a run; pass --resume to continue it, "
+            "or choose another --out (nothing was overwritten)"
+        )
+    if folder.path.exists() and (not folder.path.is_dir() or any(folder.path.iterdir())):
+        raise UsageError(f"{folder.path} exists and is not an empty folder; choose another --out")
+    check_writable(folder.path)
+    return folder, spec, None
+
+
+# ---------------------------------------------------------------------------- progress
+class Progress:
+    """A progress bar on a terminal, one line per evaluation otherwise."""
+
+    def __init__(self, total_steps: int, seeds: int, done_steps: int, bar: bool) -> None:
+        self.seeds = seeds
+        self.total = total_steps
+        self.bar = None
+        self.last_time = time.perf_counter()
+        self.last_steps = done_steps
+        if bar:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total_steps, initial=done_steps, unit="step", unit_scale=True,
+                            desc=f"training ({seeds} seed{'s' * (seeds > 1)}, steps per seed)",
+                            file=sys.stderr, dynamic_ncols=True, smoothing=0.3)
+
+    def update(self, steps: int, success: float, danger: float) -> None:
+        now = time.perf_counter()
+        rate = (steps - self.last_steps) * self.seeds / max(now - self.last_time, 1e-9)
+        self.last_time, self.last_steps = now, steps
+        if self.bar is not None:
+            self.bar.set_postfix_str(
+                f"{rate:,.0f} env steps/s, success {success:.2f}, danger {danger:.3f}"
+            )
+            self.bar.update(steps - self.bar.n)
+        else:
+            print(f"steps {steps:,}/{self.total:,} per seed · {rate:,.0f} env steps/s · "
+                  f"success {success:.3f} · danger {danger:.3f}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def compile_phase(what: str, function, *examples, ticker: bool):
+    """Compiles ``function`` for ``examples`` as its own announced phase; returns it compiled."""
+    print(f"compiling {what} (the first seconds of a run; nothing to show yet) ...",
+          file=sys.stderr, flush=True)
+    start = time.perf_counter()
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(1.0):
+            print(f"\r  compiling ... {time.perf_counter() - start:4.0f} s", end="",
+                  file=sys.stderr, flush=True)
+
+    thread = threading.Thread(target=tick, daemon=True) if ticker else None
+    if thread:
+        thread.start()
+    try:
+        compiled = function.lower(*examples).compile()
+    finally:
+        done.set()
+        if thread:
+            thread.join()
+            print("\r", end="", file=sys.stderr)
+    print(f"  compiled in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    return compiled
+
+
+# ---------------------------------------------------------------------------- training
+class StopRequest:
+    """Turns the first Ctrl-C / SIGTERM into a request honoured between chunks."""
+
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> StopRequest:
+        for number in (signal.SIGINT, signal.SIGTERM):
+            self._previous[number] = signal.signal(number, self._handle)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+
+    def _handle(self, number: int, frame: Any) -> None:
+        if self.signal_name is not None:  # a second request: stop at once
+            signal.signal(number, self._previous.get(number, signal.SIG_DFL))
+            raise KeyboardInterrupt
+        self.signal_name = signal.Signals(number).name
+        print(f"\n{self.signal_name}: finishing the current chunk, then saving a checkpoint "
+              "(press again to stop at once, losing the work since the last checkpoint)",
+              file=sys.stderr, flush=True)
+
+
+def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
+    """One ``metrics.csv`` row per seed from an evaluation point (leaves ``[seeds]``)."""
+    from ccrjax.run_folder import EVAL_METRICS
+
+    rows = []
+    for index, seed in enumerate(seeds):
+        row = {"seed": seed, "env_steps": int(point["env_steps"][index]), "wall_time_s": wall}
+        for name in (*EVAL_METRICS, "cumulative_danger_steps"):
+            row[name] = float(point[name][index])
+        rows.append(row)
+    return rows
+
+
+def state_bytes(abstract_state: Any) -> int:
+    import jax
+    import numpy as np
+
+    return sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize
+               for x in jax.tree_util.tree_leaves(abstract_state))
+
+
+def physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: bool) -> int:
+    """Trains (or resumes) the run in ``folder``; returns the exit status."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ccrjax.checkpoint import CheckpointError, Checkpoints
+    from ccrjax.run_folder import environment_record, fingerprint
+    from ccrjax.training import make_train
+
+    config = spec.train
+    program = make_train(config)
+    seeds = spec.seed_list
+    keys = jnp.stack([jax.random.PRNGKey(seed) for seed in seeds])
+    abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
+    size = state_bytes(abstract_state)
+    memory = physical_memory()
+    if memory is not None and 2.2 * size > memory:
+        raise UsageError(
+            f"the training state of {len(seeds)} seed(s) needs {size / 2**30:.1f} GiB (twice "
+            f"that while training) but this machine has {memory / 2**30:.1f} GiB; use fewer "
+            "--seeds, or a smaller replay buffer (--ddpg-buffer-size / --maac-buffer-size)"
+        )
+    run_record = spec.to_dict()
+    run_fingerprint = fingerprint(run_record)
+    resuming = record is not None
+    if record is None:  # a new run
+        record = {**environment_record(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                  "command": " ".join([PROG, *sys.argv[1:]]) if sys.argv else PROG,
+                  "fingerprint": run_fingerprint, "run": run_record}
+        folder.write_config(record)
+    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
+    total_chunks = program.num_evaluations
+    chunk_steps = config.iterations_per_eval * config.steps_per_iteration
+
+    history: list[dict[str, Any]] = []
+    wall_before = 0.0
+    state = None
+    if record.get("fingerprint") != run_fingerprint:
+        raise UsageError(f"{folder.config_path} does not match the run it describes")
+    if checkpoints.steps():
+        try:
+            restored = checkpoints.restore_latest(abstract_state, run_fingerprint)
+        except CheckpointError as error:  # IncompatibleCheckpoint included
+            raise UsageError(f"--resume: {error}") from None
+        for step, why in restored.skipped:
+            print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
+                  f"checkpoint {restored.step}", file=sys.stderr, flush=True)
+        state = restored.state
+        history = restored.meta["history"]
+        wall_before = float(restored.meta["wall_time_s"])
+        folder.rewrite_metrics(history)
+        print(f"resuming {folder.path} from checkpoint {restored.step:,} "
+              f"(of {total_chunks * chunk_steps:,} steps per seed)", file=sys.stderr, flush=True)
+    elif resuming:
+        raise UsageError(
+            f"--resume: {folder.path} has no checkpoint (the run stopped before its first one); "
+            "start it again with another --out"
+        )
+
+    start_time = time.perf_counter()
+
+    def wall() -> float:
+        return wall_before + time.perf_counter() - start_time
+
+    chunk = compile_phase(
+        f"the training program for {len(seeds)} seed(s) "
+        f"({size / 2**20:,.0f} MiB of training state)",
+        jax.jit(jax.vmap(program.chunk, in_axes=(0, None))), abstract_state, True,
+        ticker=progress_bar,
+    )
+    if state is None:
+        state = jax.jit(jax.vmap(program.init))(keys)
+        state, point, _ = chunk(state, False)  # the untrained policy's evaluation
+        history = point_rows(jax.device_get(point), seeds, wall())
+        folder.rewrite_metrics(history)
+        folder.open_tensorboard(seeds, purge_step=None)
+        for row in history:
+            folder.log_scalars(row["seed"], row["env_steps"], _eval_scalars(row))
+    else:
+        # Events written after the checkpoint by the run that stopped are hidden.
+        folder.open_tensorboard(seeds, purge_step=int(history[-1]["env_steps"]) + 1)
+    done_chunks = int(history[-1]["env_steps"]) // chunk_steps
+
+    def save(current_state) -> None:
+        meta = {"fingerprint": run_fingerprint, "history": history, "wall_time_s": wall()}
+        checkpoints.save(int(history[-1]["env_steps"]), current_state, meta)
+
+    progress = Progress(total_chunks * chunk_steps, len(seeds), done_chunks * chunk_steps,
+                        progress_bar)
+    status = 0
+    with StopRequest() as stop:
+        for index in range(done_chunks, total_chunks):
+            if stop.signal_name is not None:
+                break
+            state, point, training = chunk(state, True)
+            point, training, bad = jax.device_get((point, training, state.nonfinite_iteration))
+            bad = np.asarray(bad)
+            if np.any(bad >= 0):
+                progress.close()
+                seed_index = int(np.flatnonzero(bad >= 0)[0])
+                kept = checkpoints.steps()
+                kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
+                             if kept else "it had written no checkpoint yet")
+                print(f"{PROG}: error: training became non-finite at iteration "
+                      f"{int(bad[seed_index])} (seed {seeds[seed_index]}); the run stopped and "
+                      f"{kept_note}", file=sys.stderr, flush=True)
+                status = NONFINITE
+                break
+            rows = point_rows(point, seeds, wall())
+            history.extend(rows)
+            folder.append_metrics(rows)
+            for k, row in enumerate(rows):
+                scalars = _eval_scalars(row)
+                scalars.update({f"train/{name}": float(np.asarray(value)[k])
+                                for name, value in training.items()})
+                folder.log_scalars(row["seed"], row["env_steps"], scalars)
+            progress.update(rows[0]["env_steps"],
+                            float(np.mean([r["success_rate"] for r in rows])),
+                            float(np.mean([r["danger_frequency"] for r in rows])))
+            last = index + 1 == total_chunks
+            if last or (index + 1) % spec.chunks_per_checkpoint == 0 or stop.signal_name:
+                save(state)
+        progress.close()
+        checkpoints.wait()
+        saved = checkpoints.steps()
+        checkpoints.close()
+        folder.close_tensorboard()
+    if status != 0:
+        return status
+    finished = int(history[-1]["env_steps"]) >= total_chunks * chunk_steps
+    if not finished:
+        steps = int(history[-1]["env_steps"])
+        note = (f"checkpoint {saved[-1]:,} is saved" if saved else "no checkpoint was written")
+        print(f"stopped by {stop.signal_name} at {steps:,} steps per seed; {note}. "
+              f"Continue with:\n  {PROG} --out {folder.path} --resume",
+              file=sys.stderr, flush=True)
+        return INTERRUPTED
+    finish(folder, program, state, seeds, history, wall())
+    return 0
+
+
+def _eval_scalars(row: dict[str, Any]) -> dict[str, float]:
+    from ccrjax.run_folder import EVAL_METRICS
+
+    scalars = {f"eval/{name}": row[name] for name in EVAL_METRICS}
+    scalars["train/cumulative_danger_steps"] = row["cumulative_danger_steps"]
+    return scalars
+
+
+def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
+           history: list[dict[str, Any]], wall: float) -> None:
+    """The summary, the curves and the episode pictures of a finished run."""
+    import jax
+
+    from ccrjax.episode_pictures import record_trained_episode, seed_slice, write_episode_pictures
+    from ccrjax.plots import Curves, curves_from_rows, draw_curves
+
+    final_steps = history[-1]["env_steps"]
+    final_rows = [row for row in history if row["env_steps"] == final_steps]
+    summary = folder.write_summary(final_rows, {"wall_time_s": wall})
+    curves = Curves()
+    steps, values = curves_from_rows(history)
+    config = program.config
+    label = f"{config.algo} {config.variant}"
+    curves.add(label, steps, values)
+    draw_curves(curves, folder.path / "curves.png",
+                title=f"{config.scenario}: {label}, {len(seeds)} seed(s)")
+    key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
+    record = record_trained_episode(program, seed_slice(state, 0), key)
+    png, gif = write_episode_pictures(record, folder.path)
+    print_summary(summary, folder)
+    print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
+    print(f"TensorBoard: tensorboard --logdir {folder.tensorboard_dir}")
+
+
+def print_summary(summary: dict[str, Any], folder: Any) -> None:
+    seeds = summary["seeds"]
+    print(f"\n{folder.path}: {summary['env_steps_per_seed']:,} environment steps per seed, "
+          f"{len(seeds)} seed(s), {summary['wall_time_s']:.0f} s")
+    print(format_table(summary))
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    """The four metrics per seed, and their mean with 95% CI, as a text table."""
+    from ccrjax.run_folder import EVAL_METRICS
+
+    header = f"{'seed':>8} " + " ".join(f"{m:>18}" for m in EVAL_METRICS)
+    lines = [header, "-" * len(header)]
+    for seed, values in summary["per_seed"].items():
+        lines.append(f"{seed:>8} " + " ".join(f"{values[m]:18.4f}" for m in EVAL_METRICS))
+    cells = []
+    for m in EVAL_METRICS:
+        stats = summary["mean_ci95"][m]
+        half = stats["half_width"]
+        cells.append(f"{stats['mean']:.4f}" + (f" ± {half:.4f}" if half is not None else ""))
+    lines.append(f"{'mean':>8} " + " ".join(f"{c:>18}" for c in cells))
+    if len(summary["per_seed"]) > 1:
+        lines.append("(± is the 95% confidence interval of the mean over seeds, Student t)")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    cli.enable_compilation_cache(None if args.no_compilation_cache else args.compilation_cache)
+    try:
+        folder, spec, record = open_folder(args)
+        return train_run(folder, spec, record, progress_bar=(not args.no_progress)
+                         and sys.stderr.isatty())
+    except UsageError as error:
+        cli.fail(PROG, str(error))
+    except ValueError as error:  # a configuration value the dataclasses refuse
+        cli.fail(PROG, str(error))
+    except KeyboardInterrupt:
+        print(f"{PROG}: stopped at once; the last checkpoint (if any) is intact",
+              file=sys.stderr)
+        return INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

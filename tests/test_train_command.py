@@ -1,0 +1,342 @@
+"""``python -m ccrjax.train`` and ``python -m ccrjax.evaluate``: the run folder, checkpoints that
+resume exactly (after SIGKILL and Ctrl-C of a real subprocess), and every kind of bad input.
+
+All runs use one tiny configuration (2 seeds, 2 environments of 10 steps, 16-unit
+networks), so the program compiles once; the session's compilation cache
+(``conftest.py``) serves the subprocesses and later runs.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ccrjax import evaluate, train
+from ccrjax.checkpoint import Checkpoints
+from ccrjax.run_folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics
+from ccrjax.training import make_train
+
+TINY = [
+    "--scenario", "hidden_obstacle", "--algo", "maddpg", "--variant", "pessimistic",
+    "--steps", "3000", "--num-envs", "2", "--episode-length", "10", "--eval-every", "200",
+    "--eval-episodes", "4", "--learning-starts", "100", "--ddpg-batch-size", "32",
+    "--ddpg-actor-hidden", "16", "--ddpg-critic-hidden", "16", "--ddpg-update-every", "10",
+    "--seeds", "2", "--seed-offset", "3", "--checkpoint-every", "200", "--keep-checkpoints", "3",
+    "--no-progress",
+]
+FINAL_STEPS = 3000
+
+
+def run_main(module, argv, capsys):
+    """``module.main(argv)``'s exit status and what it printed."""
+    try:
+        status = module.main([str(a) for a in argv])
+    except SystemExit as exit_:
+        status = exit_.code
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def assert_usage_error(status, err, *fragments):
+    assert status == 2, err
+    lines = [line for line in err.strip().splitlines() if line]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def final_state(folder: Path):
+    """The latest checkpoint of a run folder, restored."""
+    spec = train.RunSpec.from_dict(RunFolder(folder).read_config()["run"])
+    program = make_train(spec.train)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in spec.seed_list])
+    abstract = jax.eval_shape(jax.vmap(program.init), keys)
+    checkpoints = Checkpoints(folder / "checkpoints")
+    try:
+        return checkpoints.restore_latest(abstract, fingerprint(spec.to_dict()))
+    finally:
+        checkpoints.close()
+
+
+def assert_same_run(a: Path, b: Path):
+    """Same parameters, buffers, keys and counters, and the same metrics (wall time aside)."""
+    restored_a, restored_b = final_state(a), final_state(b)
+    assert restored_a.step == restored_b.step == FINAL_STEPS
+    leaves_a = jax.tree_util.tree_leaves(restored_a.state)
+    leaves_b = jax.tree_util.tree_leaves(restored_b.state)
+    assert len(leaves_a) == len(leaves_b)
+    for x, y in zip(leaves_a, leaves_b, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    rows_a, rows_b = read_metrics(a / "metrics.csv"), read_metrics(b / "metrics.csv")
+    assert len(rows_a) == len(rows_b) == 2 * (FINAL_STEPS // 200 + 1)
+    for row_a, row_b in zip(rows_a, rows_b, strict=True):
+        for column in CSV_COLUMNS:
+            if column != "wall_time_s":
+                assert row_a[column] == row_b[column], (column, row_a, row_b)
+    summary_a = json.loads((a / "summary.json").read_text())
+    summary_b = json.loads((b / "summary.json").read_text())
+    assert summary_a["per_seed"] == summary_b["per_seed"]
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """The tiny run, never interrupted (in this process)."""
+    out = tmp_path_factory.mktemp("runs") / "uninterrupted"
+    status = train.main([*TINY, "--out", str(out)])
+    assert status == 0
+    return out
+
+
+def start_subprocess(out: Path, env, *extra):
+    return subprocess.Popen(
+        [sys.executable, "-m", "ccrjax.train", *TINY, "--out", str(out), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )
+
+
+def wait_for(path: Path, process: subprocess.Popen, timeout: float = 240.0):
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() < deadline, f"{path} never appeared"
+        time.sleep(0.005)
+
+
+# ---------------------------------------------------------------------------- the folder
+def test_help_lists_every_option_with_its_default():
+    text = train.build_parser().format_help()
+    for option in ("--scenario", "--algo", "--variant", "--lam", "--seeds", "--seed-offset",
+                   "--steps", "--num-envs", "--robots", "--out", "--resume",
+                   "--checkpoint-every", "--keep-checkpoints", "--ddpg-actor-lr",
+                   "--ddpg-batch-size", "--maac-policy-lr", "--maac-gradient-steps"):
+        assert option in text
+    parser = train.build_parser()
+    for action in parser._actions:
+        if action.option_strings and action.help not in (None, "==SUPPRESS==") and (
+            action.dest not in ("help", "resume", "no_progress", "no_compilation_cache")
+        ):
+            assert "default" in action.help, action.option_strings
+
+
+def test_a_finished_run_leaves_everything_in_its_folder(finished_run):
+    out = finished_run
+    for name in ("config.json", "metrics.csv", "summary.json", "curves.png", "episode.png",
+                 "episode.gif"):
+        assert (out / name).stat().st_size > 0, name
+    config = json.loads((out / "config.json").read_text())
+    for key in ("ccrjax_version", "git_commit", "jax_version", "devices", "run"):
+        assert key in config
+    assert config["run"]["train"]["penalty"] == 1.0
+    assert config["run"]["train"]["ddpg"]["critic_hidden"] == [16]
+    rows = read_metrics(out / "metrics.csv")
+    assert {r["seed"] for r in rows} == {3, 4}
+    assert sorted({r["env_steps"] for r in rows}) == list(range(0, FINAL_STEPS + 1, 200))
+    danger = [r["cumulative_danger_steps"] for r in rows if r["seed"] == 3]
+    assert danger == sorted(danger) and danger[-1] > 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["per_seed"]) == {"3", "4"}
+    stats = summary["mean_ci95"]["return"]
+    values = [summary["per_seed"][s]["return"] for s in ("3", "4")]
+    assert stats["mean"] == pytest.approx(np.mean(values))
+    assert stats["ci_low"] < stats["mean"] < stats["ci_high"]
+    assert sorted(p.name for p in (out / "tensorboard").iterdir()) == ["seed_3", "seed_4"]
+    assert any((out / "tensorboard" / "seed_3").glob("events.out.tfevents.*"))
+    assert (out / "checkpoints" / str(FINAL_STEPS)).is_dir()
+    assert len(list((out / "checkpoints").iterdir())) == 3  # the last --keep-checkpoints
+
+
+def test_the_command_trains_what_the_library_trains(finished_run):
+    """The run folder's curves are the pure program's evaluation history."""
+    spec = train.RunSpec.from_dict(RunFolder(finished_run).read_config()["run"])
+    program = make_train(spec.train)
+    _, history = jax.jit(program.train)(jax.random.PRNGKey(4))
+    rows = [r for r in read_metrics(finished_run / "metrics.csv") if r["seed"] == 4]
+    np.testing.assert_allclose([r["return"] for r in rows], history["return"], rtol=1e-5)
+    np.testing.assert_array_equal([r["env_steps"] for r in rows], history["env_steps"])
+
+
+# ---------------------------------------------------------------------------- resuming
+def test_a_run_killed_with_sigkill_resumes_to_exactly_the_same_result(
+    finished_run, tmp_path, subprocess_env, capsys
+):
+    out = tmp_path / "killed"
+    process = start_subprocess(out, subprocess_env)
+    wait_for(out / "checkpoints" / "400", process)
+    process.kill()
+    process.communicate()
+    assert process.returncode == -signal.SIGKILL
+    assert (out / "checkpoints").exists() and not (out / "summary.json").exists()
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress"], capsys)
+    assert status == 0, err
+    assert "resuming" in err
+    assert_same_run(finished_run, out)
+
+
+def test_ctrl_c_saves_a_checkpoint_exits_cleanly_and_resumes_exactly(
+    finished_run, tmp_path, subprocess_env, capsys
+):
+    out = tmp_path / "interrupted"
+    process = start_subprocess(out, subprocess_env)
+    wait_for(out / "checkpoints" / "400", process)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == train.INTERRUPTED, err
+    assert "Traceback" not in err
+    assert "--resume" in err
+    saved = sorted(int(p.name) for p in (out / "checkpoints").iterdir() if p.name.isdigit())
+    assert saved and saved[-1] >= 400
+    rows = read_metrics(out / "metrics.csv")
+    assert max(r["env_steps"] for r in rows) == saved[-1]  # the checkpoint holds every row
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress"], capsys)
+    assert status == 0, err
+    assert_same_run(finished_run, out)
+
+
+def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(finished_run, tmp_path, capsys):
+    out = tmp_path / "corrupted"
+    shutil.copytree(finished_run, out)
+    # A half-written checkpoint (what a kill during a save leaves) is ignored ...
+    (out / "checkpoints" / "9999.orbax-checkpoint-tmp").mkdir()
+    # ... and a corrupted one is set aside, the previous one used.
+    latest = out / "checkpoints" / str(FINAL_STEPS)
+    for data in latest.rglob("*"):
+        if data.is_file() and data.stat().st_size > 0:
+            data.write_bytes(b"\0" * 7)
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress"], capsys)
+    assert status == 0, err
+    assert f"checkpoint {FINAL_STEPS} is unreadable" in err
+    assert f"fell back to checkpoint {FINAL_STEPS - 200}" in err
+    assert_same_run(finished_run, out)
+
+
+# ---------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (["--scenario", "lava"], "--scenario"),
+        (["--algo", "ppo"], "--algo"),
+        (["--frobnicate", "3"], "--frobnicate"),
+        (["--seeds", "0"], "--seeds"),
+        (["--steps", "many"], "--steps"),
+        (["--lam", "-1", "--variant", "ccr"], "--lam"),
+        (["--robots", "1"], "--robots"),
+        (["--ddpg-actor-lr", "-0.1"], "actor_lr"),
+        (["--ddpg-critic-hidden", "64,0"], "--ddpg-critic-hidden"),
+        (["--ddpg-gamma", "1.5"], "gamma"),
+        (["--penalty", "2"], "--penalty"),
+        (["--maac-policy-lr", "0.01"], "--maac"),
+        (["--algo", "maac", "--ddpg-tau", "0.1"], "--ddpg"),
+        (["--resume"], "--out"),
+    ],
+)
+def test_bad_command_lines_get_one_line_and_status_2(argv, fragment, tmp_path, capsys):
+    out = tmp_path / "never"
+    status, _, err = run_main(train, [*argv, "--out", out] if argv != ["--resume"] else argv,
+                              capsys)
+    assert_usage_error(status, err, fragment)
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_folder_holding_a_run_is_never_overwritten(finished_run, tmp_path, capsys):
+    out = tmp_path / "existing"
+    shutil.copytree(finished_run, out)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    status, _, err = run_main(train, [*TINY, "--lam", "3", "--variant", "ccr", "--out", out],
+                              capsys)
+    assert_usage_error(status, err)
+    status, _, err = run_main(train, [*TINY, "--out", out], capsys)
+    assert_usage_error(status, err, "already holds a run", "--resume")
+    assert before == {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    status, _, err = run_main(train, [*TINY, "--out", other], capsys)
+    assert_usage_error(status, err, "not an empty folder")
+    assert (other / "notes.txt").read_text() == "mine"
+
+
+def test_resume_needs_a_run_with_a_checkpoint(finished_run, tmp_path, capsys):
+    status, _, err = run_main(train, ["--out", tmp_path / "nothing", "--resume"], capsys)
+    assert_usage_error(status, err, "holds no run")
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(finished_run / "config.json", bare / "config.json")
+    status, _, err = run_main(train, ["--out", bare, "--resume"], capsys)
+    assert_usage_error(status, err, "no checkpoint")
+
+
+def test_resume_refuses_options_that_contradict_the_run(finished_run, tmp_path, capsys):
+    out = tmp_path / "run"
+    shutil.copytree(finished_run, out)
+    status, _, err = run_main(train, ["--out", out, "--resume", "--penalty", "2"], capsys)
+    assert_usage_error(status, err, "penalty is 1.0 in the run, 2.0 here")
+    status, _, err = run_main(train, ["--out", out, "--resume", "--seeds", "5"], capsys)
+    assert_usage_error(status, err, "seeds is 2 in the run, 5 here")
+
+
+def test_a_checkpoint_of_another_configuration_is_refused(finished_run, tmp_path, capsys):
+    out = tmp_path / "mixed"
+    shutil.copytree(finished_run, out)
+    folder = RunFolder(out)
+    record = folder.read_config()
+    record["run"]["train"]["penalty"] = 2.0  # same shapes, another run
+    record["fingerprint"] = fingerprint(record["run"])
+    folder.write_config(record)
+    status, _, err = run_main(train, ["--out", out, "--resume"], capsys)
+    assert_usage_error(status, err, "another configuration")
+
+
+def test_a_folder_that_cannot_be_written_is_refused(tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    status, _, err = run_main(train, [*TINY, "--out", blocker / "run"], capsys)
+    assert_usage_error(status, err, "cannot write")
+
+
+def test_a_run_that_turns_non_finite_stops_naming_the_iteration(tmp_path, capsys):
+    out = tmp_path / "exploding"
+    # Learning starts in the second chunk (400 transitions, 20 per iteration, 10 iterations
+    # per chunk), after the first checkpoint; Adam steps of 1e30 make the critic's output
+    # overflow on the next update.
+    argv = [*TINY, "--learning-starts", "400", "--ddpg-critic-lr", "1e30", "--ddpg-actor-lr",
+            "1e30", "--out", out]
+    status, _, err = run_main(train, argv, capsys)
+    assert status == train.NONFINITE, err
+    assert "Traceback" not in err
+    assert "non-finite at iteration" in err
+    assert "last good checkpoint" in err
+    kept = sorted(int(p.name) for p in (out / "checkpoints").iterdir() if p.name.isdigit())
+    assert kept and kept[-1] < FINAL_STEPS
+    restored = final_state(out)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(restored.state))
+    assert int(np.max(restored.state.nonfinite_iteration)) == -1
+
+
+# ---------------------------------------------------------------------------- evaluate
+def test_evaluate_reloads_the_run_and_redraws_its_pictures(finished_run, tmp_path, capsys):
+    out = tmp_path / "evaluated"
+    shutil.copytree(finished_run, out)
+    (out / "episode.png").unlink()
+    status, printed, err = run_main(evaluate, [out, "--episodes", "8"], capsys)
+    assert status == 0, err
+    assert "success_rate" in printed and "danger_frequency" in printed
+    assert (out / "episode.png").stat().st_size > 0
+    result = json.loads((out / "evaluation.json").read_text())
+    assert result["checkpoint_env_steps"] == FINAL_STEPS
+    assert result["episodes_per_seed"] == 8
+    assert set(result["per_seed"]) == {"3", "4"}
+    status, _, err = run_main(evaluate, [tmp_path / "nowhere"], capsys)
+    assert_usage_error(status, err, "holds no run")
+    status, _, err = run_main(evaluate, [out, "--episodes", "0"], capsys)
+    assert_usage_error(status, err, "--episodes")
