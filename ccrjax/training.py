@@ -30,7 +30,13 @@ from flax import struct
 from ccrjax.env import CCREnv
 from ccrjax.learners.base import Learner, Transition, check_positive_int
 from ccrjax.learners.ddpg import DDPG, DDPGConfig
-from ccrjax.learners.replay import ReplayBuffer, add_block, init_replay, replay_capacity, sample
+from ccrjax.learners.replay import (
+    ReplayBuffer,
+    add_episodes,
+    init_replay,
+    replay_capacity,
+    sample,
+)
 from ccrjax.rollout import episode_metrics, run_episode
 from ccrjax.scenarios import SCENARIOS
 from ccrjax.transforms import Pessimistic, Plain, Transform
@@ -273,7 +279,11 @@ class TrainProgram:
         )
         return TrainState(
             learner=self.learner.init(learner_key, n, f),
-            buffer=init_replay(example, self.config.replay_capacity),
+            buffer=init_replay(
+                example,
+                self.config.replay_capacity // self.config.episode_length,
+                self.config.episode_length,
+            ),
             transform=self.transform.init(self.env, transform_params),
             key=key,
             eval_key=eval_key,
@@ -296,10 +306,7 @@ class TrainProgram:
         transform_state, episode = run_episode(
             self.env, self.transform, state.transform, explore, self.learner.discrete, rollout_key
         )
-        block = jax.tree_util.tree_map(
-            lambda x: x.reshape((-1,) + x.shape[2:]), episode.transitions
-        )
-        buffer = add_block(state.buffer, block)
+        buffer = add_episodes(state.buffer, episode.transitions)
 
         def do_updates(learner_state):
             def one_update(learner_state, key):
