@@ -16,8 +16,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from ccrjax.env import CCREnv
-from ccrjax.scenarios import Hazard
 from ccrjax.learners.base import Transition
+from ccrjax.scenarios import Hazard
 from ccrjax.transforms import Transform
 
 
