@@ -99,6 +99,7 @@ def run_episode(
     (_, transform_state, _), outputs = jax.lax.scan(
         one_step, (env_state, transform_state, obs), step_keys
     )
+    transform_state = transform.end_episode(transform_state)
     transitions, env_reward, danger, success, hazard_distance, position, info = outputs
     position = jnp.concatenate([env_state.pipeline_state.position[None], position], axis=0)
     return transform_state, Episode(

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from ccrjax.ccr import CCR, CCRConfig
 from ccrjax.env import CCREnv
 from ccrjax.learners.base import Learner, Transition, check_positive_int
 from ccrjax.learners.ddpg import DDPG, DDPGConfig
@@ -68,6 +69,7 @@ class TrainConfig:
     scenario: str = "nominal"
     variant: str = "plain"
     penalty: float = 1.0  # pessimistic baseline: reward lowered on danger steps
+    ccr: CCRConfig = CCRConfig()  # CCR's hyperparameters (variant "ccr")
     num_robots: int = 5
     episode_length: int = 50
     num_envs: int = 8
@@ -101,6 +103,8 @@ class TrainConfig:
         if self.maac is None and self.algo == "maac":
             object.__setattr__(self, "maac", _default_maac_config())
         Pessimistic(penalty=self.penalty)  # validates the penalty whatever the variant
+        if not isinstance(self.ccr, CCRConfig):
+            raise ValueError(f"TrainConfig.ccr must be a CCRConfig, got {self.ccr!r}")
         # Building the pieces validates the rest (env sizes, penalty, learner fields).
         make_transform(self)
         make_env(self, self.num_envs)
@@ -217,7 +221,7 @@ def make_transform(config: TrainConfig) -> Transform:
         return Plain()
     if config.variant == "pessimistic":
         return Pessimistic(penalty=config.penalty)
-    raise ValueError("variant 'ccr' is not available yet: CCR is being built (issue: CCR itself)")
+    return CCR(config.ccr)
 
 
 class NonFiniteTraining(RuntimeError):

@@ -16,6 +16,7 @@ Interface (pure functions; ``state`` is the transform's own pytree)::
     init(env, params) -> state                         # once per training run
     start_episode(state, env_state) -> (state, obs)    # after env.reset
     step(state, env_state, action, next_env_state) -> (state, obs, reward, info)
+    end_episode(state) -> state                        # after the episode's last step
 
 ``params`` holds the transform's numeric hyperparameters (the pessimistic
 penalty, CCR's lambda) as arrays inside the state, so that one compiled program
@@ -24,7 +25,9 @@ per-robot diagnostics ``[N, E]`` of the step (empty for plain and pessimistic;
 CCR reports its emergency scores, intrinsic rewards and robot states). A
 transform's state must not depend on the number of environments ``E``, so that
 training and evaluation (which run different batches) share it: per-episode
-arrays are created by ``start_episode``.
+arrays are created by ``start_episode`` and dropped by ``end_episode``, so that
+the state a training iteration carries has the same shapes before and after an
+episode (``lax.scan`` needs that).
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ class Transform(Protocol):
     def step(
         self, state: Any, env_state: EnvState, action: jax.Array, next_env_state: EnvState
     ) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]: ...
+
+    def end_episode(self, state: Any) -> Any: ...
 
 
 def as_params(defaults: dict[str, float], params: dict[str, Any] | None) -> dict[str, jax.Array]:
@@ -88,6 +93,9 @@ class Plain:
 
     def step(self, state, env_state, action, next_env_state):
         return state, next_env_state.obs, next_env_state.reward, {}
+
+    def end_episode(self, state):
+        return state
 
 
 @dataclasses.dataclass(frozen=True)
