@@ -475,9 +475,10 @@ def test_training_with_ccr_end_to_end():
     def stored_and_env_rewards(state):
         # The env reward is -|p - destination|, which is also an observation feature
         # (the destination distance, after position, velocity and the other robots).
-        data, size = state.buffer.data, int(state.buffer.size)
+        buffer, held = state.buffer, int(state.buffer.episodes)
         goal_distance = 4 + 3 * (TINY_CCR.num_robots - 1)
-        return np.asarray(data.reward[:size]), -np.asarray(data.next_obs[:size, :, goal_distance])
+        next_obs = np.asarray(buffer.obs[:held, 1:])  # [episodes, T, N, F]
+        return np.asarray(buffer.reward[:held]), -next_obs[..., goal_distance]
 
     stored, env_reward = stored_and_env_rewards(results[0.0][0])
     np.testing.assert_allclose(stored, env_reward, rtol=1e-6, atol=1e-6)
