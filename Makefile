@@ -8,7 +8,7 @@ PEER_VENV  := benchmarks/.peer-venv
 PEER_PY    := $(PEER_VENV)/bin/python
 PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train test lint bench bench-peers clean
+.PHONY: install train demo test lint bench bench-peers sweep tables clean
 
 install: $(STAMP)
 
@@ -19,7 +19,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
+# The main job: MADDPG with CCR on the hidden obstacle, 3 seeds at once (about 4 minutes on
+# 2 CPU cores), into runs/<scenario>-<algo>-<variant>-<time>/; prints where the pictures are.
 train: install
+	$(PY) -m ccrjax.train --scenario hidden_obstacle --algo maddpg --variant ccr --seeds 3
+
+# Random robots in every scenario: runs/demo/<scenario>.png and .gif.
+demo: install
 	$(PY) -m ccrjax.demo --out runs/demo
 
 test: install
@@ -30,6 +36,17 @@ lint: install
 
 bench: install
 	$(PY) benchmarks/env_throughput.py
+	$(PY) benchmarks/train_throughput.py --variants plain ccr
+
+# CCR's lambda searched in one program (see python -m ccrjax.sweep --help for options).
+SWEEP_ARGS ?=
+sweep: install
+	$(PY) -m ccrjax.sweep $(SWEEP_ARGS)
+
+# The paper's Tables I and II with confidence intervals: experiments/results/.
+TABLES_ARGS ?=
+tables: install
+	$(PY) experiments/tables.py $(TABLES_ARGS)
 
 # Peer comparison: JaxMARL's MPE simple_spread, measured the same way, in its own venv.
 bench-peers: $(PEER_STAMP)

@@ -1,0 +1,200 @@
+"""Does CCR change behaviour? The paper's behavioural analysis on ``hidden_obstacle``.
+
+    python experiments/behaviour.py                 # train both, print the comparison
+    python experiments/behaviour.py --json          # one JSON object
+    python experiments/behaviour.py --seeds 5 --steps 400000 --figure out.png
+
+The paper (section "Behavioral Analysis"): with plain MADDPG every robot runs into
+the hidden obstacle and moves away again; with MADDPG+CCR the first robots run
+into it and the others steer away before touching it, warned by the leaders'
+emergency scores, so that "robots trained with CCR-aided MADDPG get much farther
+to the obstacle".
+
+This script trains MADDPG and MADDPG+CCR (lambda 30) on ``hidden_obstacle``, the
+same seeds, every seed of both in one program, then runs the same fresh
+evaluation episodes (same starts, same obstacles) with each trained team and
+measures, per episode:
+
+* the robots' order of arrival at the obstacle: the step each robot first comes
+  within ``--reach`` of the obstacle's surface (robots that never do come last,
+  ordered by their closest approach);
+* each robot's closest approach to the obstacle's surface during the episode
+  (negative inside the soft wall), and its average distance to the obstacle's
+  centre (the paper's metric).
+
+``plain_distance`` and ``ccr_distance`` are the mean closest approach of the robots
+that reach the obstacle *later*, every robot but the first to arrive, over
+episodes and seeds; a larger value means the followers kept further from the
+obstacle. The per-rank table gives the same for each arrival rank, with the
+ratio CCR / plain of the average distance to the centre (the paper reports
+1.2x to 4.7x).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ccrjax.stats import mean_ci
+from ccrjax.sweep import record_grid_episodes, train_grid
+from ccrjax.training import TrainConfig
+
+
+def rectangle_distance(position: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Signed distance to an axis-aligned rectangle's surface (negative inside), numpy.
+
+    ``position`` ``[..., 2, E]``; ``centre``, ``half`` ``[2, E]``.
+    """
+    rel = np.abs(position - centre) - half
+    outside = np.linalg.norm(np.maximum(rel, 0.0), axis=-2)
+    inside = np.minimum(np.max(rel, axis=-2), 0.0)
+    return outside + inside
+
+
+def arrival_analysis(episodes: dict[str, np.ndarray], reach: float) -> dict[str, np.ndarray]:
+    """Per run, episode and arrival rank: closest approach and mean distance to the centre.
+
+    ``episodes`` from :func:`ccrjax.sweep.record_grid_episodes` (leading run axis ``G``).
+    Returns ``closest`` and ``centre_distance``, ``[G, E, N]`` ordered by arrival rank.
+    """
+    position = episodes["position"]  # [G, T + 1, N, 2, E]
+    centre = episodes["hazard_centre"][:, None, None]  # [G, 1, 1, 2, E]
+    half = episodes["hazard_half_extent"][:, None, None]
+    surface = rectangle_distance(position, centre, half)  # [G, T + 1, N, E]
+    centre_distance = np.linalg.norm(position - centre, axis=3).mean(axis=1)  # [G, N, E]
+    closest = surface.min(axis=1)  # [G, N, E]
+    steps = surface.shape[1]
+    reached = surface <= reach
+    first = np.where(reached.any(axis=1), reached.argmax(axis=1), steps)  # [G, N, E]
+    # Arrival order; robots that never reach come last, the closer ones first.
+    order_key = first * 1000.0 + np.clip(closest, -1.0, 998.0)
+    rank = np.argsort(order_key, axis=1, kind="stable")  # [G, N(rank), E]
+    closest = np.take_along_axis(closest, rank, axis=1).transpose(0, 2, 1)
+    centre_distance = np.take_along_axis(centre_distance, rank, axis=1).transpose(0, 2, 1)
+    return {"closest": closest, "centre_distance": centre_distance}
+
+
+def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach: float,
+                      lam: float, log) -> dict:
+    results = {}
+    analyses = {}
+    key = jax.random.PRNGKey(2**20 + 7)  # evaluation episodes no training run has seen
+    for variant in ("plain", "ccr"):
+        config = TrainConfig(algo="maddpg", scenario="hidden_obstacle", variant=variant,
+                             total_env_steps=steps)
+        config = dataclasses.replace(config, eval_every=config.total_env_steps)
+        log(f"training MADDPG {variant} on hidden_obstacle: {len(seeds)} seed(s) x "
+            f"{config.total_env_steps:,} steps ...")
+        params = {"lam": [lam] * len(seeds)} if variant == "ccr" else None
+        runs = train_grid(config, seeds, params, log=log)
+        log(f"  trained in {runs.run_s:.0f} s")
+        recorded = record_grid_episodes(runs, episodes, key)
+        analyses[variant] = arrival_analysis(recorded, reach)
+        results[variant] = {
+            "final_eval": {k: [float(x) for x in v] for k, v in runs.final.items()},
+            "danger_frequency": float(recorded["danger"].mean()),
+        }
+    per_rank = []
+    num_robots = analyses["plain"]["closest"].shape[-1]
+    for rank in range(num_robots):
+        row = {"rank": rank + 1}
+        for variant in ("plain", "ccr"):
+            closest = analyses[variant]["closest"][..., rank]  # [G, E]
+            centre = analyses[variant]["centre_distance"][..., rank]
+            row[f"{variant}_closest"] = mean_ci(closest.mean(axis=1))
+            row[f"{variant}_centre_distance"] = mean_ci(centre.mean(axis=1))
+        row["centre_distance_ratio"] = (row["ccr_centre_distance"]["mean"]
+                                        / row["plain_centre_distance"]["mean"])
+        per_rank.append(row)
+    followers = {v: analyses[v]["closest"][..., 1:].mean(axis=(1, 2)) for v in ("plain", "ccr")}
+    return {
+        "plain_distance": float(followers["plain"].mean()),
+        "ccr_distance": float(followers["ccr"].mean()),
+        "plain_distance_ci95": mean_ci(followers["plain"]),
+        "ccr_distance_ci95": mean_ci(followers["ccr"]),
+        "per_rank": per_rank,
+        "seeds": seeds,
+        "episodes_per_seed": episodes,
+        "reach": reach,
+        "lam": lam,
+        "runs": results,
+    }
+
+
+def draw_figure(result: dict, path: Path) -> None:
+    """Per arrival rank: average distance to the obstacle's centre, plain vs CCR, with CIs."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 3.6), dpi=130)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ranks = np.array([row["rank"] for row in result["per_rank"]])
+    for offset, variant, colour, label in ((-0.18, "plain", "#8c8c8c", "MADDPG"),
+                                           (0.18, "ccr", "#ff5fa2", "MADDPG+CCR")):
+        stats = [row[f"{variant}_centre_distance"] for row in result["per_rank"]]
+        means = [s["mean"] for s in stats]
+        errors = [s["half_width"] or 0.0 for s in stats]
+        ax.bar(ranks + offset, means, width=0.36, yerr=errors, capsize=3, color=colour,
+               label=label)
+    ax.set_xticks(ranks)
+    ax.set_xlabel("robot, in order of arrival at the obstacle")
+    ax.set_ylabel("average distance to obstacle centre")
+    ax.set_title("hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
+                 fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per variant (default: 3)")
+    parser.add_argument("--seed-offset", type=int, default=0)
+    parser.add_argument("--steps", type=int, default=None,
+                        help="environment steps per run (default: MADDPG's 400,000)")
+    parser.add_argument("--episodes", type=int, default=256,
+                        help="evaluation episodes per seed (default: 256)")
+    parser.add_argument("--reach", type=float, default=0.3,
+                        help="a robot 'reaches' the obstacle within this distance of its "
+                        "surface (default: 0.3)")
+    parser.add_argument("--lam", type=float, default=30.0)
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="also draw the per-rank distances to this PNG")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or args.episodes < 1 or args.reach < 0 or args.lam < 0:
+        parser.error("--seeds and --episodes must be >= 1, --reach and --lam >= 0")
+
+    def log(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    seeds = list(range(args.seed_offset, args.seed_offset + args.seeds))
+    result = train_and_measure(seeds, args.steps, args.episodes, args.reach, args.lam, log)
+    if args.figure is not None:
+        draw_figure(result, args.figure)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    print(f"followers' closest approach to the obstacle surface (mean over robots 2..N, "
+          f"{args.episodes} episodes x {len(seeds)} seeds):")
+    print(f"  MADDPG      {result['plain_distance']:.3f}")
+    print(f"  MADDPG+CCR  {result['ccr_distance']:.3f}")
+    print(f"\n{'rank':>4} {'closest plain':>14} {'closest CCR':>12} {'centre plain':>13} "
+          f"{'centre CCR':>11} {'ratio':>6}")
+    for row in result["per_rank"]:
+        print(f"{row['rank']:4d} {row['plain_closest']['mean']:14.3f} "
+              f"{row['ccr_closest']['mean']:12.3f} {row['plain_centre_distance']['mean']:13.3f} "
+              f"{row['ccr_centre_distance']['mean']:11.3f} {row['centre_distance_ratio']:6.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
