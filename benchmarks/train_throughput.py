@@ -6,7 +6,7 @@
 For each learner it compiles ``TrainProgram.run`` (rollout of every training
 environment through the transform, replay insertion, learner updates, all in one
 ``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after
-compilation, and reports the median: environment steps per second, learner
+compilation (the state donated, so no call copies the replay buffer), and reports the median: environment steps per second, learner
 updates per second, and the arithmetic of one update (matrix-multiply FLOPs) with
 the rate it implies, so the CPU's utilisation can be judged. Learning starts at
 once (``learning_starts=0``) so every measured iteration includes its updates.
@@ -21,42 +21,64 @@ import statistics
 import time
 
 import jax
+import jax.numpy as jnp
 
 from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
-def measure(algo: str, variant: str, scenario: str, iterations: int, repeats: int) -> dict:
+def compiled_run(algo: str, variant: str, scenario: str, iterations: int):
+    """The compiled ``run`` of ``iterations`` iterations, a state to feed it, and the config."""
     config = TrainConfig(algo=algo, scenario=scenario, variant=variant, learning_starts=0)
     program = make_train(config)
-    state = program.init(jax.random.PRNGKey(0))
-    run = jax.jit(program.run, static_argnums=1)
-    compile_start = time.perf_counter()
-    state, _ = run(state, iterations)
+    # Every leaf its own buffer (the initial targets share their online networks').
+    state = jax.tree_util.tree_map(jnp.copy, program.init(jax.random.PRNGKey(0)))
+    # The state is donated: a long run carries it from chunk to chunk in place, where an
+    # undonated call would first copy the whole replay buffer.
+    run = jax.jit(program.run, static_argnums=1, donate_argnums=0)
+    start = time.perf_counter()
+    state, _ = run(state, iterations)  # compiles, then fills the buffer a little
     jax.block_until_ready(state)
-    compile_s = time.perf_counter() - compile_start
-    times = []
+    return program, config, run, state, time.perf_counter() - start
+
+
+def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int):
+    """One row per variant; variants are timed in turns (ABAB...), so that the machine's
+    drift affects them alike, and each row gets the ratio of its median time to the first
+    variant's (``time_vs_<first>``: CCR's overhead when the first is plain)."""
+    setups = {v: compiled_run(algo, v, scenario, iterations) for v in variants}
+    states = {v: setup[3] for v, setup in setups.items()}
+    times: dict[str, list[float]] = {v: [] for v in variants}
     for _ in range(repeats):
-        start = time.perf_counter()
-        state, _ = run(state, iterations)
-        jax.block_until_ready(state)
-        times.append(time.perf_counter() - start)
-    median = statistics.median(times)
-    updates = iterations * config.updates_per_iteration
-    flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
-    return {
-        "algo": algo,
-        "variant": variant,
-        "scenario": scenario,
-        "env_steps_per_s": iterations * config.steps_per_iteration / median,
-        "updates_per_s": updates / median,
-        "gflop_per_update": flops / 1e9,
-        "gflop_per_s": flops * updates / median / 1e9,
-        "median_s": median,
-        "repeats": repeats,
-        "iterations": iterations,
-        "first_call_s": compile_s,
-        "device": jax.devices()[0].device_kind,
-    }
+        for variant in variants:
+            run = setups[variant][2]
+            start = time.perf_counter()
+            states[variant], _ = run(states[variant], iterations)
+            jax.block_until_ready(states[variant])
+            times[variant].append(time.perf_counter() - start)
+    rows = []
+    base = statistics.median(times[variants[0]])
+    for variant in variants:
+        program, config, _, _, compile_s = setups[variant]
+        median = statistics.median(times[variant])
+        updates = iterations * config.updates_per_iteration
+        flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
+        rows.append({
+            "algo": algo,
+            "variant": variant,
+            "scenario": scenario,
+            "env_steps_per_s": iterations * config.steps_per_iteration / median,
+            "updates_per_s": updates / median,
+            "gflop_per_update": flops / 1e9,
+            "gflop_per_s": flops * updates / median / 1e9,
+            f"time_vs_{variants[0]}": median / base,
+            "median_s": median,
+            "times_s": times[variant],
+            "repeats": repeats,
+            "iterations": iterations,
+            "first_call_s": compile_s,
+            "device": jax.devices()[0].device_kind,
+        })
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,8 +93,7 @@ def main(argv: list[str] | None = None) -> int:
 
     rows = []
     for algo in args.algos:
-        for variant in args.variants:
-            row = measure(algo, variant, args.scenario, args.iterations, args.repeats)
+        for row in measure(algo, args.variants, args.scenario, args.iterations, args.repeats):
             rows.append(row)
             if args.json:
                 print(json.dumps(row), flush=True)
@@ -80,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__}")
         header = (
             f"{'learner':8} {'variant':12} {'env steps/s':>12} {'updates/s':>10} "
-            f"{'GFLOP/upd':>10} {'GFLOP/s':>8}"
+            f"{'GFLOP/upd':>10} {'GFLOP/s':>8} {'time vs ' + args.variants[0]:>14}"
         )
         print(header)
         print("-" * len(header))
@@ -88,9 +109,10 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f} "
                 f"{row['updates_per_s']:10.1f} {row['gflop_per_update']:10.2f} "
-                f"{row['gflop_per_s']:8.1f}"
+                f"{row['gflop_per_s']:8.1f} {row['time_vs_' + args.variants[0]]:14.3f}"
             )
-        print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation")
+        print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation, "
+              "variants timed in turns")
     return 0
 
 

@@ -11,6 +11,7 @@ One idea per module:
 from ccrjax.ccr.dynamics import (
     DynamicsStatistics,
     accumulate,
+    accumulate_features,
     command_vector,
     fit,
     init_coefficients,
@@ -54,6 +55,7 @@ __all__ = [
     "STANDBY",
     "ScoreWindow",
     "accumulate",
+    "accumulate_features",
     "command_vector",
     "emergency_score",
     "fit",

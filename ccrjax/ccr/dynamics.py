@@ -231,7 +231,23 @@ def accumulate(
     chex.assert_equal_shape([inputs, targets])
     features = polynomial_features(inputs, _degree_of(coefficients))  # [N, P, E]
     residual = jnp.einsum("npe,pk->nke", features, coefficients) - targets
-    weight = robust_weight(jnp.sum(residual * residual, axis=1), tolerance)  # [N, E]
+    return accumulate_features(
+        statistics, features, targets, jnp.sum(residual * residual, axis=1), tolerance
+    )
+
+
+def accumulate_features(
+    statistics: DynamicsStatistics,
+    features: jax.Array,
+    targets: jax.Array,
+    error: jax.Array,
+    tolerance: float,
+) -> DynamicsStatistics:
+    """:func:`accumulate` for callers that already hold ``phi(x)`` ``[N, P, E]`` and each
+    transition's squared error ``e`` ``[N, E]`` under the current coefficients (CCR's
+    transform computes both for the emergency score, so the step computes them once)."""
+    chex.assert_rank([features, targets, error], [3, 3, 2])
+    weight = robust_weight(error, tolerance)  # [N, E]
     # A non-finite transition has weight 0; zero its values too, since 0 * nan is nan.
     valid = (weight > 0)[:, None]
     features = jnp.where(valid, features, 0.0)

@@ -204,13 +204,20 @@ class CCR:
 
         own_state, next_own_state = obs[:, 0:4], next_obs[:, 0:4]  # (p, v) as observed
         command = dynamics.command_vector(action, state.discrete_actions)
-        predicted = dynamics.predict_state(state.coefficients, own_state, command)
+        # phi(x) once, for the prediction and for the model's statistics.
+        features = dynamics.polynomial_features(
+            dynamics.model_inputs(own_state, command), config.degree
+        )
+        predicted_targets = jnp.einsum("npe,pk->nke", features, state.coefficients)
+        predicted = jnp.concatenate(
+            [own_state[:, 0:2] + predicted_targets[:, 0:2], predicted_targets[:, 2:4]], axis=1
+        )  # s_hat_{t+1} = (p_t + dp_hat, v_hat)
         raw_score = emergency_score(predicted, next_own_state)
-        statistics = dynamics.accumulate(
+        statistics = dynamics.accumulate_features(
             state.statistics,
-            state.coefficients,
-            dynamics.model_inputs(own_state, command),
+            features,
             dynamics.model_targets(own_state, next_own_state),
+            raw_score,  # |s_hat - s|^2 is the squared residual of the targets
             config.tolerance,
         )
         window = push_score(state.episode.window, raw_score)
