@@ -3,13 +3,16 @@
     python benchmarks/train_throughput.py            # table
     python benchmarks/train_throughput.py --json     # one JSON object per line
 
-For each learner it compiles ``TrainProgram.run`` (rollout of every training
-environment through the transform, replay insertion, learner updates, all in one
-``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after
-compilation (the state donated, so no call copies the replay buffer), and reports the median: environment steps per second, learner
-updates per second, and the arithmetic of one update (matrix-multiply FLOPs) with
-the rate it implies, so the CPU's utilisation can be judged. Learning starts at
-once (``learning_starts=0``) so every measured iteration includes its updates.
+For each learner and variant it compiles ``TrainProgram.run`` (rollout of every
+training environment through the transform, replay insertion, learner updates, all
+in one ``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after
+compilation, the variants in turns, with the state donated (as in a long run, no
+call copies the replay buffer), and reports the medians: environment steps per
+second, learner updates per second, the arithmetic of one update (matrix-multiply
+FLOPs) with the rate it implies, so the CPU's utilisation can be judged, and each
+variant's time per step relative to the first variant's (with ``--variants plain
+ccr``: CCR's overhead). Learning starts at once (``learning_starts=0``) so every
+measured iteration includes its updates.
 """
 
 from __future__ import annotations
