@@ -51,6 +51,7 @@ class GridRuns:
     params: dict[str, np.ndarray]  # [G] per transform parameter
     history: dict[str, np.ndarray]  # [G, evaluations + 1] per metric (and env_steps)
     policy: Any  # (learner state, transform state), leaves [G, ...]
+    episodes: dict[str, np.ndarray] | None  # recorded evaluation episodes, leaves [G, ...]
     compile_s: float
     run_s: float
 
@@ -68,17 +69,97 @@ class GridRuns:
             params={k: v[index] for k, v in self.params.items()},
             history={k: v[index] for k, v in self.history.items()},
             policy=jax.tree_util.tree_map(lambda x: x[index], self.policy),
+            episodes=None if self.episodes is None
+            else {k: v[index] for k, v in self.episodes.items()},
         )
 
 
-def _policy_program(config: TrainConfig):
-    program = make_train(config)
+class GridTraining:
+    """A grid of runs of one configuration, compiled and run as one sharded program.
 
-    def run(entry: dict[str, Any]):
-        state, history = program.train(entry["key"], entry["params"])
-        return (state.learner, state.transform), history, state.nonfinite_iteration
+    Entry ``g`` trains with seed ``seeds[g]`` and the transform numbers ``params[name][g]``
+    (e.g. ``{"lam": [...]}``, ``{"penalty": [...]}``); the others take the configuration's
+    values. With ``record_episodes > 0`` the same program then runs that many fresh
+    evaluation episodes of every trained team (deterministic policies; the same starts
+    and hazards for every entry, drawn from ``record_key``) and returns what happened in
+    them (:attr:`GridRuns.episodes`). :meth:`compile` and :meth:`run` are separate so
+    that a caller can compile the next grid while this one trains.
+    """
 
-    return program, run
+    def __init__(
+        self,
+        config: TrainConfig,
+        seeds: Sequence[int],
+        params: dict[str, Sequence[float]] | None = None,
+        *,
+        record_episodes: int = 0,
+        record_key: jax.Array | None = None,
+    ) -> None:
+        self.config = config
+        self.seeds = [int(s) for s in seeds]
+        program = make_train(config)
+        defaults = program.default_transform_params()
+        given = {k: np.asarray(v, np.float32) for k, v in (params or {}).items()}
+        for name, values in given.items():
+            if name not in defaults:
+                raise ValueError(f"variant {config.variant!r} takes the run parameters "
+                                 f"{sorted(defaults)}, not {name!r}")
+            if values.shape != (len(self.seeds),):
+                raise ValueError(f"params[{name!r}] must hold one value per seed "
+                                 f"({len(self.seeds)})")
+        self.params = {name: given.get(name, np.full(len(self.seeds), value, np.float32))
+                       for name, value in defaults.items()}
+        self.inputs = {"key": np.asarray(stack_keys(self.seeds)), "params": self.params}
+        record_env = make_env(config, record_episodes) if record_episodes else None
+        record_key = jax.random.PRNGKey(0) if record_key is None else record_key
+
+        def one_run(entry: dict[str, Any]):
+            state, history = program.train(entry["key"], entry["params"])
+            out = {"policy": (state.learner, state.transform), "history": history,
+                   "nonfinite": state.nonfinite_iteration}
+            if record_env is not None:
+                def greedy(obs, step_key):
+                    return program.learner.act(state.learner, obs, step_key, False)
+
+                _, episode = run_episode(record_env, program.transform, state.transform,
+                                         greedy, program.learner.discrete, record_key)
+                out["episodes"] = {
+                    "position": episode.position,
+                    "danger": episode.danger,
+                    "hazard_centre": episode.hazard.centre,
+                    "hazard_half_extent": episode.hazard.half_extent,
+                    **episode.info,
+                }
+            return out
+
+        self.grid = GridProgram(one_run)
+        self.compile_s = 0.0
+
+    def compile(self, optimize: bool = True) -> float:
+        """Compiles the program (thread-safe to call from a worker); returns the seconds.
+        ``optimize=False``: see :meth:`ccrjax.grid.GridProgram.compile`."""
+        start = time.perf_counter()
+        self.grid.compile(self.inputs, optimize)
+        self.compile_s = time.perf_counter() - start
+        return self.compile_s
+
+    def run(self) -> GridRuns:
+        """Trains every entry; raises :class:`ccrjax.training.NonFiniteTraining` if one went
+        non-finite."""
+        start = time.perf_counter()
+        out = self.grid(self.inputs)
+        run_s = time.perf_counter() - start
+        nonfinite = out["nonfinite"]
+        if np.any(nonfinite >= 0):
+            from ccrjax.training import NonFiniteTraining
+
+            bad = int(np.flatnonzero(nonfinite >= 0)[0])
+            raise NonFiniteTraining(f"run {bad} (seed {self.seeds[bad]}) became non-finite at "
+                                    f"iteration {int(nonfinite[bad])}")
+        return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
+                        history={k: np.asarray(v) for k, v in out["history"].items()},
+                        policy=out["policy"], episodes=out.get("episodes"),
+                        compile_s=self.compile_s, run_s=run_s)
 
 
 def train_grid(
@@ -86,77 +167,18 @@ def train_grid(
     seeds: Sequence[int],
     params: dict[str, Sequence[float]] | None = None,
     *,
+    record_episodes: int = 0,
+    record_key: jax.Array | None = None,
     log=None,
 ) -> GridRuns:
-    """Trains ``len(seeds)`` runs of ``config`` at once; run ``g`` uses seed ``seeds[g]`` and the
-    transform numbers ``params[name][g]`` (e.g. ``{"lam": [...]}``, ``{"penalty": [...]}``).
-
-    Raises :class:`ccrjax.training.NonFiniteTraining` if any run went non-finite.
-    """
-    program, run = _policy_program(config)
-    seeds = [int(s) for s in seeds]
-    defaults = program.default_transform_params()
-    given = {k: np.asarray(v, np.float32) for k, v in (params or {}).items()}
-    for name, values in given.items():
-        if name not in defaults:
-            raise ValueError(f"{config.variant} takes the run parameters {sorted(defaults)}, "
-                             f"not {name!r}")
-        if values.shape != (len(seeds),):
-            raise ValueError(f"params[{name!r}] must hold one value per seed ({len(seeds)})")
-    grid_params = {name: given.get(name, np.full(len(seeds), value, np.float32))
-                   for name, value in defaults.items()}
-    inputs = {"key": np.asarray(stack_keys(seeds)), "params": grid_params}
-    grid = GridProgram(run)
-    start = time.perf_counter()
-    grid.compile(inputs)
-    compile_s = time.perf_counter() - start
+    """Compiles and runs a :class:`GridTraining` (see there)."""
+    training = GridTraining(config, seeds, params, record_episodes=record_episodes,
+                            record_key=record_key)
+    compile_s = training.compile()
     if log:
-        log(f"  compiled in {compile_s:.1f} s ({grid.num_devices} device(s)); training "
-            f"{len(seeds)} run(s) ...")
-    start = time.perf_counter()
-    policy, history, nonfinite = grid(inputs)
-    run_s = time.perf_counter() - start
-    if np.any(nonfinite >= 0):
-        from ccrjax.training import NonFiniteTraining
-
-        bad = int(np.flatnonzero(nonfinite >= 0)[0])
-        raise NonFiniteTraining(
-            f"run {bad} (seed {seeds[bad]}) became non-finite at iteration {int(nonfinite[bad])}"
-        )
-    return GridRuns(config=config, seeds=seeds, params=grid_params,
-                    history={k: np.asarray(v) for k, v in history.items()},
-                    policy=policy, compile_s=compile_s, run_s=run_s)
-
-
-def record_grid_episodes(runs: GridRuns, episodes: int, key: jax.Array) -> dict[str, np.ndarray]:
-    """``episodes`` fresh evaluation episodes of every run (deterministic policies, the same
-    episodes for every run: same starts and hazards).
-
-    Returns host arrays with a leading run axis: ``position`` ``[G, T + 1, N, 2, E]``,
-    ``danger`` ``[G, T, N, E]``, ``hazard_centre``/``hazard_half_extent`` ``[G, 2, E]`` and
-    every ``info`` entry of the transform (``[G, T, N, E]``).
-    """
-    config = runs.config
-    program = make_train(config)
-    env = make_env(config, episodes)
-
-    def one(policy):
-        learner, transform = policy
-
-        def greedy(obs, step_key):
-            return program.learner.act(learner, obs, step_key, False)
-
-        _, episode = run_episode(env, program.transform, transform, greedy,
-                                 program.learner.discrete, key)
-        return {
-            "position": episode.position,
-            "danger": episode.danger,
-            "hazard_centre": episode.hazard.centre,
-            "hazard_half_extent": episode.hazard.half_extent,
-            **episode.info,
-        }
-
-    return GridProgram(one)(runs.policy)
+        log(f"  compiled in {compile_s:.1f} s ({training.grid.num_devices} device(s)); "
+            f"training {len(training.seeds)} run(s) ...")
+    return training.run()
 
 
 def summarise(values: np.ndarray) -> dict[str, Any]:

@@ -41,43 +41,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from ccrjax.analysis import arrival_analysis
 from ccrjax.stats import mean_ci
-from ccrjax.sweep import record_grid_episodes, train_grid
+from ccrjax.sweep import train_grid
 from ccrjax.training import TrainConfig
-
-
-def rectangle_distance(position: np.ndarray, centre: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """Signed distance to an axis-aligned rectangle's surface (negative inside), numpy.
-
-    ``position`` ``[..., 2, E]``; ``centre``, ``half`` ``[2, E]``.
-    """
-    rel = np.abs(position - centre) - half
-    outside = np.linalg.norm(np.maximum(rel, 0.0), axis=-2)
-    inside = np.minimum(np.max(rel, axis=-2), 0.0)
-    return outside + inside
-
-
-def arrival_analysis(episodes: dict[str, np.ndarray], reach: float) -> dict[str, np.ndarray]:
-    """Per run, episode and arrival rank: closest approach and mean distance to the centre.
-
-    ``episodes`` from :func:`ccrjax.sweep.record_grid_episodes` (leading run axis ``G``).
-    Returns ``closest`` and ``centre_distance``, ``[G, E, N]`` ordered by arrival rank.
-    """
-    position = episodes["position"]  # [G, T + 1, N, 2, E]
-    centre = episodes["hazard_centre"][:, None, None]  # [G, 1, 1, 2, E]
-    half = episodes["hazard_half_extent"][:, None, None]
-    surface = rectangle_distance(position, centre, half)  # [G, T + 1, N, E]
-    centre_distance = np.linalg.norm(position - centre, axis=3).mean(axis=1)  # [G, N, E]
-    closest = surface.min(axis=1)  # [G, N, E]
-    steps = surface.shape[1]
-    reached = surface <= reach
-    first = np.where(reached.any(axis=1), reached.argmax(axis=1), steps)  # [G, N, E]
-    # Arrival order; robots that never reach come last, the closer ones first.
-    order_key = first * 1000.0 + np.clip(closest, -1.0, 998.0)
-    rank = np.argsort(order_key, axis=1, kind="stable")  # [G, N(rank), E]
-    closest = np.take_along_axis(closest, rank, axis=1).transpose(0, 2, 1)
-    centre_distance = np.take_along_axis(centre_distance, rank, axis=1).transpose(0, 2, 1)
-    return {"closest": closest, "centre_distance": centre_distance}
 
 
 def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach: float,
@@ -92,9 +59,10 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
         log(f"training MADDPG {variant} on hidden_obstacle: {len(seeds)} seed(s) x "
             f"{config.total_env_steps:,} steps ...")
         params = {"lam": [lam] * len(seeds)} if variant == "ccr" else None
-        runs = train_grid(config, seeds, params, log=log)
+        runs = train_grid(config, seeds, params, record_episodes=episodes, record_key=key,
+                          log=log)
         log(f"  trained in {runs.run_s:.0f} s")
-        recorded = record_grid_episodes(runs, episodes, key)
+        recorded = runs.episodes
         analyses[variant] = arrival_analysis(recorded, reach)
         results[variant] = {
             "final_eval": {k: [float(x) for x in v] for k, v in runs.final.items()},

@@ -1,0 +1,96 @@
+"""``experiments/tables.py --quick``: the whole grid, its files, and resuming by cells.
+
+The quick mode trains all 18 programs (3 scenarios x 3 learners x {plain and pessimistic,
+CCR}) with tiny networks for a few hundred steps: it checks the pipeline (cells, tables,
+headline figures, figures, resuming), not the learning.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
+
+
+@pytest.fixture(scope="module")
+def tables():
+    spec = importlib.util.spec_from_file_location("tables_script", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def quick_run(tables, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tables")
+    assert tables.main(["--quick", "--out", str(out)]) == 0
+    return out
+
+
+def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run):
+    out = quick_run
+    text = (out / "tables.md").read_text()
+    for heading in ("Table I: dangerous-behaviour frequency", "Table II: success rate",
+                    "headline figures", "Do the paper's claims hold here?"):
+        assert heading in text
+    assert "MADDPG+CCR" in text and "(40.92%)" in text  # the paper's number beside ours
+    result = json.loads((out / "tables.json").read_text())
+    records = result["records"]
+    assert len(records) == 27
+    assert {(r["scenario"], r["algo"], r["variant"]) for r in records} == {
+        (s, a, v) for s in tables.SCENARIOS for a in tables.ALGOS for v in tables.VARIANTS}
+    for record in records:
+        danger = record["danger_frequency"]
+        assert len(danger["per_seed"]) == 2
+        assert danger["mean"] == pytest.approx(sum(danger["per_seed"]) / 2)
+        assert "paper" in danger and "paper" in record["success_rate"]
+    assert set(result["headlines"]) == set(tables.PAPER_HEADLINES)
+    assert result["claims"]["danger_lower_vs_plain"]["of"] == 9
+    for figure in ("curves_hidden_obstacle_maddpg.png", "trajectories_hidden_obstacle_maddpg.png",
+                   "distance_hidden_obstacle_maddpg.png"):
+        assert (out / figure).stat().st_size > 0
+    cells = sorted((out / "cells").iterdir())
+    assert len(cells) == 27 and not [c for c in cells if c.name.startswith(".")]
+
+
+def test_the_paper_headlines_follow_from_its_tables(tables):
+    """Our headline formula, applied to the paper's own tables, gives the paper's figures."""
+    cells = {}
+    for (scenario, algo, variant), danger in tables.PAPER["danger_frequency"].items():
+        success = tables.PAPER["success_rate"][(scenario, algo, variant)]
+        cells[(scenario, algo, variant)] = {"final": {"danger_frequency": [danger],
+                                                      "success_rate": [success]}}
+    for key, metric, new, base, sign in (
+        ("danger_reduction_vs_plain", "danger_frequency", "ccr", "plain", -1),
+        ("danger_reduction_vs_pessimistic", "danger_frequency", "ccr", "pessimistic", -1),
+        ("success_change_vs_pessimistic", "success_rate", "ccr", "pessimistic", 1),
+    ):
+        value = tables.headline(cells, metric, new, base, sign, resamples=2)["mean"]
+        assert value == pytest.approx(tables.PAPER_HEADLINES[key], abs=6e-4), key
+
+
+def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run, capsys):
+    out = quick_run
+    missing = out / "cells" / "strong_wind-maac-ccr.json"
+    missing.unlink()
+    kept = out / "cells" / "turbulence-iddpg-plain.json"
+    before = kept.read_text()
+    capsys.readouterr()
+    assert tables.main(["--quick", "--out", str(out)]) == 0
+    log = capsys.readouterr().err
+    assert "17 of 18 programs already done; 1 to train" in log
+    assert missing.exists()
+    assert kept.read_text() == before
+
+
+def test_quick_mode_refuses_to_write_over_the_committed_results(tables, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        tables.main(["--quick"])
+    assert exit_.value.code == 2
+    assert "--quick needs --out" in capsys.readouterr().err
