@@ -19,6 +19,8 @@ import typing
 from collections.abc import Callable, Iterable
 from typing import Any, NoReturn
 
+from ccrjax.learners.base import in_interval, interval_text
+
 USAGE_ERROR = 2
 
 
@@ -69,14 +71,9 @@ def float_in(low: float, high: float | None = None, *, low_open: bool = False,
 
     def convert(text: str) -> float:
         value = _number(text, float)
-        ok = value > low if low_open else value >= low
-        if high is not None:
-            ok = ok and (value < high if high_open else value <= high)
-        if not ok:
-            left = "(" if low_open else "["
-            right = (")" if high_open else "]") if high is not None else ")"
-            upper = high if high is not None else "inf"
-            raise argparse.ArgumentTypeError(f"must be in {left}{low}, {upper}{right}, got {text}")
+        if not in_interval(value, low, high, low_open, high_open):
+            allowed = interval_text(low, high, low_open, high_open)
+            raise argparse.ArgumentTypeError(f"must be in {allowed}, got {text}")
         return value
 
     return convert

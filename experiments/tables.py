@@ -353,7 +353,8 @@ def claims(cells) -> dict[str, Any]:
     return result
 
 
-def summary(cells, settings: Settings, wall_s: float, command: str) -> dict[str, Any]:
+def summary(cells, settings: Settings, wall_s: float, command: str,
+            commit: str | None) -> dict[str, Any]:
     records = []
     for scenario in SCENARIOS:
         for algo in ALGOS:
@@ -384,7 +385,7 @@ def summary(cells, settings: Settings, wall_s: float, command: str) -> dict[str,
         "command": command,
         "programs_seconds": sum(c["train_seconds_of_program"] + c["compile_seconds_of_program"]
                                 for c in programs.values()),
-        "commit": _commit(),
+        "commit": commit,
         "wall_time_s": wall_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
         "jax_version": jax.__version__,
@@ -649,11 +650,12 @@ def main(argv: list[str] | None = None) -> int:
         print(text, file=sys.stderr, flush=True)
 
     start = time.perf_counter()
+    commit = _commit()  # the code this run trains with
     cells = run_grid(settings, out, log)
     wall = time.perf_counter() - start
     command = " ".join(["python experiments/tables.py", *(argv if argv is not None
                                                            else sys.argv[1:])])
-    result = summary(cells, settings, wall, command)
+    result = summary(cells, settings, wall, command, commit)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))
     figures = draw_figures(cells, out)

@@ -65,22 +65,32 @@ def check_positive_int(owner: str, name: str, value: Any) -> None:
         raise ValueError(f"{owner}.{name} must be an integer > 0, got {value!r}")
 
 
+def in_interval(value: float, low: float, high: float | None, low_open: bool,
+                high_open: bool) -> bool:
+    """Whether ``value`` lies in the interval (``high=None``: unbounded above)."""
+    ok = value > low if low_open else value >= low
+    if high is not None:
+        ok = ok and (value < high if high_open else value <= high)
+    return ok
+
+
+def interval_text(low: float, high: float | None, low_open: bool, high_open: bool) -> str:
+    """The interval written out, e.g. ``(0.0, 1.0]`` or ``[0.0, inf)``."""
+    left = "(" if low_open else "["
+    right = (")" if high_open else "]") if high is not None else ")"
+    return f"{left}{low}, {high if high is not None else 'inf'}{right}"
+
+
 def check_finite(
     owner: str, name: str, value: Any, *, low: float = 0.0, low_open: bool = True,
     high: float | None = None, high_open: bool = False,
 ) -> None:
     """``ValueError`` naming the field unless ``value`` is a finite number in range."""
     ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-    if ok:
-        ok = value > low if low_open else value >= low
-        if high is not None:
-            ok = ok and (value < high if high_open else value <= high)
-    if not ok:
-        left = "(" if low_open else "["
-        right = (")" if high_open else "]") if high is not None else ")"
-        upper = high if high is not None else "inf"
+    if not (ok and in_interval(value, low, high, low_open, high_open)):
         raise ValueError(
-            f"{owner}.{name} must be a finite number in {left}{low}, {upper}{right}, got {value!r}"
+            f"{owner}.{name} must be a finite number in "
+            f"{interval_text(low, high, low_open, high_open)}, got {value!r}"
         )
 
 
