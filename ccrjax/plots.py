@@ -70,7 +70,7 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
             mean, half = mean_ci_along(per_seed, axis=0)
             n = per_seed.shape[0]
             ax.plot(steps, mean, color=colour, linewidth=1.8,
-                    label=f"{label} (n={n})" if index == 0 else None)
+                    label=f"{label} (n={n} seeds)" if index == 0 else None)
             if n > 1:
                 ax.fill_between(steps, mean - half, mean + half, color=colour, alpha=0.2,
                                 linewidth=0)
@@ -83,10 +83,12 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
         if metric in ("success_rate", "danger_frequency"):
             ax.set_ylim(-0.02, 1.02)
     handles, labels = fig.axes[0].get_legend_handles_labels()
-    if handles:
-        fig.legend(handles, labels, loc="lower right", fontsize=9,
-                   title="mean and 95% CI over seeds", title_fontsize=8)
     if title:
         fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+    if handles:  # below the panels, never over a curve
+        fig.legend(handles, [f"{label}: mean, 95% CI over seeds" for label in labels],
+                   loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
+        fig.tight_layout(rect=(0, 0.09 / rows, 1, 1))
+    else:
+        fig.tight_layout()
     fig.savefig(os.fspath(path), dpi=dpi)

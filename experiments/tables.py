@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -52,7 +51,7 @@ from ccrjax import cli
 from ccrjax.analysis import arrival_analysis
 from ccrjax.learners.ddpg import DDPGConfig
 from ccrjax.learners.maac import MAACConfig
-from ccrjax.run_folder import EVAL_METRICS, write_atomic
+from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import GridRuns, GridTraining
 from ccrjax.training import TrainConfig
@@ -222,8 +221,9 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     return cells
 
 
-def run_grid(settings: Settings, out: Path, log) -> dict[tuple[str, str, str], dict]:
-    """Trains every missing cell (compiling the next program while one trains)."""
+def run_grid(settings: Settings, out: Path, log) -> tuple[dict, int]:
+    """Trains every missing cell (compiling the next program while one trains); returns
+    the cells by (scenario, algo, variant) and the number of programs trained."""
     jobs = []
     for scenario in SCENARIOS:
         for algo in ALGOS:
@@ -261,7 +261,7 @@ def run_grid(settings: Settings, out: Path, log) -> dict[tuple[str, str, str], d
             log(f"[{number}/{len(todo)}] {job.name}: trained {len(runs.seeds)} runs in "
                 f"{runs.run_s:.0f} s (compiled in {runs.compile_s:.0f} s)")
             job.training = None  # free the compiled program
-    return cells
+    return cells, len(todo)
 
 
 # ---------------------------------------------------------------------------- the numbers
@@ -353,8 +353,9 @@ def claims(cells) -> dict[str, Any]:
     return result
 
 
-def summary(cells, settings: Settings, wall_s: float, command: str,
-            commit: str | None) -> dict[str, Any]:
+def summary(cells, settings: Settings, invocations: list[dict[str, Any]]) -> dict[str, Any]:
+    """Everything ``tables.json`` holds. ``invocations``: every run of this script that
+    produced these cells (command, commit, wall time, programs trained), oldest first."""
     records = []
     for scenario in SCENARIOS:
         for algo in ALGOS:
@@ -382,11 +383,9 @@ def summary(cells, settings: Settings, wall_s: float, command: str,
     programs = {(c["scenario"], c["algo"], c["variant"] == "ccr"): c for c in cells.values()}
     return {
         "settings": dataclasses.asdict(settings),
-        "command": command,
+        "invocations": invocations,
         "programs_seconds": sum(c["train_seconds_of_program"] + c["compile_seconds_of_program"]
                                 for c in programs.values()),
-        "commit": commit,
-        "wall_time_s": wall_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
         "jax_version": jax.__version__,
         "records": records,
@@ -394,14 +393,6 @@ def summary(cells, settings: Settings, wall_s: float, command: str,
         "paper_headlines": PAPER_HEADLINES,
         "claims": claims(cells),
     }
-
-
-def _commit() -> str | None:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                              check=True, cwd=Path(__file__).parent, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return None
 
 
 # ---------------------------------------------------------------------------- writing
@@ -439,10 +430,13 @@ def tables_markdown(result: dict) -> str:
     lines = [
         "# The paper's Tables I and II, re-run with ccrjax",
         "",
-        f"Command: `{result['command']}` at commit `{result['commit']}`; wall time "
-        f"{result['wall_time_s'] / 60:.1f} min on {', '.join(result['devices'])} "
-        f"(jax {result['jax_version']}); the 18 programs' compile and training time add up to "
-        f"{result['programs_seconds'] / 60:.1f} min.",
+        f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}); the 18 "
+        f"programs' compile and training time add up to {result['programs_seconds'] / 60:.1f} "
+        "min. Runs of the script that made these results:",
+        "",
+        *(f"* `{run['command']}` at commit `{run['commit']}`, {run['date']}: trained "
+          f"{run['programs_trained']} of 18 programs, wall time {run['wall_time_s'] / 60:.1f} min"
+          for run in result["invocations"]),
         "",
         f"{settings['seeds']} seeds per cell (seeds {settings['seed_offset']} to "
         f"{settings['seed_offset'] + settings['seeds'] - 1}), {settings['steps']:,} environment "
@@ -650,12 +644,22 @@ def main(argv: list[str] | None = None) -> int:
         print(text, file=sys.stderr, flush=True)
 
     start = time.perf_counter()
-    commit = _commit()  # the code this run trains with
-    cells = run_grid(settings, out, log)
-    wall = time.perf_counter() - start
-    command = " ".join(["python experiments/tables.py", *(argv if argv is not None
-                                                           else sys.argv[1:])])
-    result = summary(cells, settings, wall, command, commit)
+    invocation = {
+        "command": " ".join(["python experiments/tables.py",
+                             *(argv if argv is not None else sys.argv[1:])]),
+        "commit": git_commit(),  # the code this run trains with (+dirty: uncommitted changes)
+        "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+    }
+    cells, trained = run_grid(settings, out, log)
+    invocation.update(wall_time_s=time.perf_counter() - start, programs_trained=trained)
+    previous: list[dict[str, Any]] = []
+    try:  # earlier runs that made some of these cells
+        old = json.loads((out / "tables.json").read_text())
+        if old.get("settings") == dataclasses.asdict(settings):
+            previous = list(old.get("invocations", []))
+    except (OSError, ValueError):
+        pass
+    result = summary(cells, settings, [*previous, invocation])
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))
     figures = draw_figures(cells, out)
