@@ -46,8 +46,9 @@ def compiled_run(algo: str, variant: str, scenario: str, iterations: int):
 
 def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int):
     """One row per variant; variants are timed in turns (ABAB...), so that the machine's
-    drift affects them alike, and each row gets the ratio of its median time to the first
-    variant's (``time_vs_<first>``: CCR's overhead when the first is plain)."""
+    drift affects them alike, and each row gets the median, over rounds, of its time over the
+    first variant's in the same round (``time_vs_<first>``, with quartiles: CCR's overhead
+    when the first variant is plain)."""
     setups = {v: compiled_run(algo, v, scenario, iterations) for v in variants}
     states = {v: setup[3] for v, setup in setups.items()}
     times: dict[str, list[float]] = {v: [] for v in variants}
@@ -59,8 +60,11 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
             jax.block_until_ready(states[variant])
             times[variant].append(time.perf_counter() - start)
     rows = []
-    base = statistics.median(times[variants[0]])
+    first = variants[0]
     for variant in variants:
+        # Paired ratios: each round's time over the first variant's in the same round.
+        ratios = sorted(t / b for t, b in zip(times[variant], times[first], strict=True))
+        quartiles = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
         program, config, _, _, compile_s = setups[variant]
         median = statistics.median(times[variant])
         updates = iterations * config.updates_per_iteration
@@ -73,7 +77,8 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
             "updates_per_s": updates / median,
             "gflop_per_update": flops / 1e9,
             "gflop_per_s": flops * updates / median / 1e9,
-            f"time_vs_{variants[0]}": median / base,
+            f"time_vs_{first}": statistics.median(ratios),
+            f"time_vs_{first}_quartiles": [quartiles[0], quartiles[2]],
             "median_s": median,
             "times_s": times[variant],
             "repeats": repeats,
@@ -102,9 +107,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(row), flush=True)
     if not args.json:
         print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__}")
+        first = args.variants[0]
         header = (
             f"{'learner':8} {'variant':12} {'env steps/s':>12} {'updates/s':>10} "
-            f"{'GFLOP/upd':>10} {'GFLOP/s':>8} {'time vs ' + args.variants[0]:>14}"
+            f"{'GFLOP/upd':>10} {'GFLOP/s':>8} {'time vs ' + first:>14} {'quartiles':>13}"
         )
         print(header)
         print("-" * len(header))
@@ -112,10 +118,13 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f} "
                 f"{row['updates_per_s']:10.1f} {row['gflop_per_update']:10.2f} "
-                f"{row['gflop_per_s']:8.1f} {row['time_vs_' + args.variants[0]]:14.3f}"
+                f"{row['gflop_per_s']:8.1f} {row['time_vs_' + first]:14.3f} "
+                f"{row['time_vs_' + first + '_quartiles'][0]:6.3f}-"
+                f"{row['time_vs_' + first + '_quartiles'][1]:.3f}"
             )
         print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation, "
-              "variants timed in turns")
+              f"variants timed in turns; 'time vs {first}': median (and quartiles) of each "
+              "round's time over the first variant's in the same round")
     return 0
 
 

@@ -332,6 +332,32 @@ class CCREnv(Env):
         return stepped.replace(pipeline_state=world, obs=obs)
 
 
+OTHER_ROBOTS_START = 4  # observation features 4 .. 4 + 3 (N - 1): the other robots
+
+
+def other_robot_features(obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """From observations ``[N, F, B]``: each robot's distance and unit direction ``(ux, uy)``
+    to every other robot (increasing index order), each ``[N, N - 1, B]``."""
+    num_robots, _, batch = obs.shape
+    block = obs[:, OTHER_ROBOTS_START:OTHER_ROBOTS_START + 3 * (num_robots - 1)]
+    block = block.reshape(num_robots, num_robots - 1, 3, batch)
+    return block[:, :, 0], block[:, :, 1], block[:, :, 2]
+
+
+def of_other_robots(values: jax.Array) -> jax.Array:
+    """``values`` ``[N, B]`` (one per robot) as each robot sees the others': ``[N, N - 1, B]``,
+    entry ``[i, k]`` the value of the ``k``-th other robot of ``i`` in increasing index order.
+
+    Slices and reshapes only (no gather): the ``N x N`` broadcast, its diagonal dropped.
+    """
+    num_robots, batch = values.shape
+    full = jnp.broadcast_to(values[None], (num_robots, num_robots, batch))
+    flat = full.reshape(num_robots * num_robots, batch)[1:]
+    return flat.reshape(num_robots - 1, num_robots + 1, batch)[:, :num_robots].reshape(
+        num_robots, num_robots - 1, batch
+    )
+
+
 def random_actions(key: jax.Array, env: CCREnv) -> jax.Array:
     """Uniformly random actions for every robot of every environment of ``env``.
 

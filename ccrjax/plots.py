@@ -92,3 +92,30 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
     else:
         fig.tight_layout()
     fig.savefig(os.fspath(path), dpi=dpi)
+
+
+def draw_rank_bars(series: dict[str, np.ndarray], path: str | os.PathLike[str], *, xlabel: str,
+                   ylabel: str, title: str, colours: Sequence[str] = ("#8c8c8c", "#ff5fa2"),
+                   dpi: int = 130) -> None:
+    """Grouped bars: for each position ``k`` (x) a bar per series, the mean over seeds of
+    ``values[:, k]`` (``series[label]`` is ``[seeds, K]``) with its 95% interval."""
+    fig = Figure(figsize=(6.4, 3.6), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    width = 0.8 / max(1, len(series))
+    for index, (label, values) in enumerate(series.items()):
+        values = np.asarray(values, np.float64)
+        mean, half = mean_ci_along(values, axis=0)
+        positions = np.arange(1, values.shape[1] + 1) + (index - (len(series) - 1) / 2) * width
+        ax.bar(positions, mean, width=width, yerr=half, capsize=3,
+               color=colours[index % len(colours)], label=f"{label} (n={values.shape[0]} seeds)")
+    ax.set_xticks(np.arange(1, values.shape[1] + 1))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    temporary = os.fspath(path) + ".tmp.png"
+    fig.savefig(temporary)
+    os.replace(temporary, path)

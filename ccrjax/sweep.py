@@ -34,7 +34,7 @@ from ccrjax import cli
 from ccrjax.cli import UsageError
 from ccrjax.grid import GridProgram, stack_keys
 from ccrjax.rollout import run_episode
-from ccrjax.run_folder import EVAL_METRICS, write_atomic
+from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
 from ccrjax.training import TrainConfig, make_env, make_train
 
@@ -235,7 +235,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         "scenario": args.scenario, "algo": args.algo, "env_steps": config.total_env_steps,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
-        "command": " ".join([PROG, *sys.argv[1:]]), "rows": rows,
+        "command": " ".join([PROG, *sys.argv[1:]]), "commit": git_commit(), "rows": rows,
     }
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "sweep.json", json.dumps(result, indent=2) + "\n")

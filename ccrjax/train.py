@@ -331,7 +331,7 @@ class Progress:
 
 def compile_phase(what: str, function, *examples, ticker: bool):
     """Compiles ``function`` for ``examples`` as its own announced phase; returns it compiled."""
-    print(f"compiling {what} (the first seconds of a run; nothing to show yet) ...",
+    print(f"compiling {what}; training starts when it is done ...",
           file=sys.stderr, flush=True)
     start = time.perf_counter()
     done = threading.Event()
@@ -476,8 +476,8 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
         return wall_before + time.perf_counter() - start_time
 
     chunk = compile_phase(
-        f"the training program for {len(seeds)} seed(s) "
-        f"({size / 2**20:,.0f} MiB of training state)",
+        f"the training program for {len(seeds)} seed(s) ({size / 2**20:,.0f} MiB of "
+        "training state)",
         jax.jit(jax.vmap(program.chunk, in_axes=(0, None))), abstract_state, True,
         ticker=progress_bar,
     )

@@ -39,9 +39,9 @@ import sys
 from pathlib import Path
 
 import jax
-import numpy as np
 
 from ccrjax.analysis import arrival_analysis
+from ccrjax.plots import draw_rank_bars
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import train_grid
 from ccrjax.training import TrainConfig
@@ -87,6 +87,8 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
         "plain_distance_ci95": mean_ci(followers["plain"]),
         "ccr_distance_ci95": mean_ci(followers["ccr"]),
         "per_rank": per_rank,
+        "centre_distance_per_seed": {  # [seeds, rank]
+            v: analyses[v]["centre_distance"].mean(axis=1).tolist() for v in ("plain", "ccr")},
         "seeds": seeds,
         "episodes_per_seed": episodes,
         "reach": reach,
@@ -97,29 +99,13 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
 
 def draw_figure(result: dict, path: Path) -> None:
     """Per arrival rank: average distance to the obstacle's centre, plain vs CCR, with CIs."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6.4, 3.6), dpi=130)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    ranks = np.array([row["rank"] for row in result["per_rank"]])
-    for offset, variant, colour, label in ((-0.18, "plain", "#8c8c8c", "MADDPG"),
-                                           (0.18, "ccr", "#ff5fa2", "MADDPG+CCR")):
-        stats = [row[f"{variant}_centre_distance"] for row in result["per_rank"]]
-        means = [s["mean"] for s in stats]
-        errors = [s["half_width"] or 0.0 for s in stats]
-        ax.bar(ranks + offset, means, width=0.36, yerr=errors, capsize=3, color=colour,
-               label=label)
-    ax.set_xticks(ranks)
-    ax.set_xlabel("robot, in order of arrival at the obstacle")
-    ax.set_ylabel("average distance to obstacle centre")
-    ax.set_title("hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
-                 fontsize=9)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path)
+    draw_rank_bars(
+        {"MADDPG": result["centre_distance_per_seed"]["plain"],
+         "MADDPG+CCR": result["centre_distance_per_seed"]["ccr"]},
+        path, xlabel="robot, in order of arrival at the obstacle",
+        ylabel="average distance to obstacle centre",
+        title="hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

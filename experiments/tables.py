@@ -583,30 +583,15 @@ def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
 
 
 def draw_distances(plain: dict, ccr: dict, path: Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from ccrjax.plots import draw_rank_bars
 
-    fig = Figure(figsize=(6.4, 3.6), dpi=130)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    for offset, cell, colour, label in ((-0.18, plain, "#8c8c8c", "MADDPG"),
-                                        (0.18, ccr, "#ff5fa2", "MADDPG+CCR")):
-        per_seed = np.asarray(cell["arrival"]["centre_distance"])  # [seeds, N]
-        ranks = np.arange(1, per_seed.shape[1] + 1)
-        summaries = [mean_ci(per_seed[:, k]) for k in range(per_seed.shape[1])]
-        ax.bar(ranks + offset, [s["mean"] for s in summaries], width=0.36,
-               yerr=[s["half_width"] or 0.0 for s in summaries], capsize=3, color=colour,
-               label=label)
-    ax.set_xticks(ranks)
-    ax.set_xlabel("robot, in order of arrival at the obstacle")
-    ax.set_ylabel("average distance to the obstacle centre")
-    ax.set_title("hidden obstacle: distance kept (mean, 95% CI over seeds)", fontsize=9)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    temporary = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(temporary)
-    temporary.replace(path)
+    draw_rank_bars(
+        {"MADDPG": plain["arrival"]["centre_distance"],
+         "MADDPG+CCR": ccr["arrival"]["centre_distance"]},
+        path, xlabel="robot, in order of arrival at the obstacle",
+        ylabel="average distance to the obstacle centre",
+        title="hidden obstacle: distance kept (mean, 95% CI over seeds)",
+    )
 
 
 # ---------------------------------------------------------------------------- command

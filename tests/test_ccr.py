@@ -234,11 +234,17 @@ def test_hazards_stand_out(fitted_rollouts, scenario):
 # ---------------------------------------------------------------- the transform
 def fake_state(position, velocity, num_envs=4):
     """An env state with only what CCR reads: obs [N, F, E] of the nominal 2-robot env
-    (F = 10, position and velocity in features 0:4), the same in every environment, and
-    a zero reward."""
+    (F = 10: position and velocity in features 0:4, the other robot's distance and
+    direction in 4:7), the same in every environment, and a zero reward."""
     obs = np.zeros((2, 10, num_envs), np.float32)
-    obs[:, 0:2] = np.asarray(position, np.float32)[:, :, None]
+    position = np.asarray(position, np.float32)
+    obs[:, 0:2] = position[:, :, None]
     obs[:, 2:4] = np.asarray(velocity, np.float32)[:, :, None]
+    for i, j in ((0, 1), (1, 0)):  # the other robot's distance and direction (features 4:7)
+        rel = position[j] - position[i]
+        distance = float(np.linalg.norm(rel))
+        obs[i, 4] = distance
+        obs[i, 5:7] = (rel / distance if distance > 0 else 0.0)[:, None]
     return State(pipeline_state=None, obs=jnp.asarray(obs), reward=jnp.zeros((2, num_envs)),
                  done=jnp.zeros((num_envs,)), metrics={}, info={})
 

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ccrjax.env import of_other_robots, other_robot_features
+
 
 def intrinsic_reward(
     score: jax.Array,
@@ -57,4 +59,36 @@ def intrinsic_reward(
     others = ~np.eye(num_robots, dtype=bool)[:, :, None]
     counted = others & (distance <= comm_range)
     pair_reward = jnp.where(counted, score_gap * change / (1.0 + distance), 0.0)
+    return lam * jnp.sum(pair_reward, axis=1)
+
+
+def intrinsic_reward_from_observation(
+    score: jax.Array,
+    obs: jax.Array,
+    displacement: jax.Array,
+    comm_range: float,
+    lam: jax.Array | float,
+) -> jax.Array:
+    """:func:`intrinsic_reward` from what the robots observe, as CCR's transform computes it.
+
+    The distances ``|p_i(t) - p_j(t)|`` and directions to the other robots are observation
+    features already (:func:`ccrjax.env.other_robot_features`), so ``p_j(t) - p_i(t)`` comes
+    from them and ``|p_i(t+1) - p_j(t)| = |(p_j(t) - p_i(t)) - (p_i(t+1) - p_i(t))|``; the sum
+    runs over the ``N - 1`` other robots directly. The same numbers as
+    :func:`intrinsic_reward` (``tests/test_ccr.py`` checks it) with fewer operations per step.
+
+    Args:
+      score: smoothed emergency scores at time ``t``, ``float[N, E]``.
+      obs: the environment's observations at ``t``, ``float[N, F, E]``.
+      displacement: ``p_i(t+1) - p_i(t)``, ``float[N, 2, E]``.
+      comm_range: communication range.
+      lam: the coefficient ``lambda`` (may be a traced array).
+    """
+    chex.assert_rank([score, obs, displacement], [2, 3, 3])
+    distance, ux, uy = other_robot_features(obs)  # [N, N - 1, E]
+    rel_x = distance * ux - displacement[:, 0:1]  # p_j(t) - p_i(t+1)
+    rel_y = distance * uy - displacement[:, 1:2]
+    change = jnp.sqrt(rel_x * rel_x + rel_y * rel_y) - distance  # h_i(j)
+    score_gap = of_other_robots(score) - score[:, None]  # E_j - E_i
+    pair_reward = jnp.where(distance <= comm_range, score_gap * change / (1.0 + distance), 0.0)
     return lam * jnp.sum(pair_reward, axis=1)

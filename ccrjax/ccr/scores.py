@@ -23,6 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from ccrjax.env import of_other_robots, other_robot_features
+
 
 def emergency_score(predicted: jax.Array, observed: jax.Array) -> jax.Array:
     """``E_t^i = |s_hat_t^i - s_t^i|^2`` over the predicted numbers (axis 1), ``float32[N, E]``.
@@ -110,3 +112,12 @@ def shared_scores(smoothed: jax.Array, position: jax.Array, comm_range: float) -
     rel = position[others] - position[:, None]  # [N, N - 1, 2, E]: p_j - p_i
     distance = jnp.sqrt(jnp.sum(rel * rel, axis=2))  # [N, N - 1, E]
     return jnp.where(distance <= comm_range, smoothed[others], 0.0)
+
+
+def shared_scores_from_observation(smoothed: jax.Array, obs: jax.Array,
+                                   comm_range: float) -> jax.Array:
+    """:func:`shared_scores` with the distances read from the observations ``obs``
+    ``[N, F, E]`` taken at the same time (:func:`ccrjax.env.other_robot_features`)."""
+    chex.assert_rank([smoothed, obs], [2, 3])
+    distance, _, _ = other_robot_features(obs)
+    return jnp.where(distance <= comm_range, of_other_robots(smoothed), 0.0)

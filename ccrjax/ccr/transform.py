@@ -7,14 +7,21 @@ Per transition ``t -> t+1`` of a batch of environments (paper, Fig. 2):
    observation features ``2:4``) and its command; the raw emergency score is
    ``|s_hat_{t+1} - s_{t+1}|^2`` against what it observes at ``t+1`` (position and
    velocity, features ``0:4``);
-2. the transition enters the model's robust statistics (refitted at every
-   episode start);
+2. the transition is kept for the model's robust statistics, which take in the
+   whole episode at its end (:meth:`CCR.end_episode`); the model is refitted at
+   every episode start;
 3. the rolling mean over ``m + 1`` steps gives the smoothed score ``E_{t+1}``;
 4. the intrinsic reward uses the smoothed scores ``E_t`` (those robot ``i`` saw
    when it acted) and the positions at ``t`` and ``t+1``
    (:mod:`ccrjax.ccr.intrinsic`); it is added to the environment reward;
 5. the next observation is the environment's, followed by the ``N - 1`` other
    robots' ``E_{t+1}`` (zero out of communication range; :mod:`ccrjax.ccr.scores`).
+
+The pairs of robots are read from what the robots observe: the distances and
+directions to the other robots are observation features already
+(:func:`ccrjax.env.other_robot_features`), so a step computes no pairwise
+geometry of its own; ``intrinsic_reward`` and ``shared_scores`` (from positions)
+are the reference definitions the tests compare with.
 
 ``info`` reports, per robot ``[N, E]``: ``emergency_score`` (``E_{t+1}``),
 ``intrinsic_reward`` and ``ccr_state``, the paper's trajectory colour (index into
@@ -36,13 +43,13 @@ import numpy as np
 from flax import struct
 
 from ccrjax.ccr import dynamics
-from ccrjax.ccr.intrinsic import intrinsic_reward
+from ccrjax.ccr.intrinsic import intrinsic_reward_from_observation
 from ccrjax.ccr.scores import (
     ScoreWindow,
     emergency_score,
     init_window,
     push_score,
-    shared_scores,
+    shared_scores_from_observation,
     smoothed_score,
 )
 from ccrjax.env import CCREnv
@@ -130,6 +137,11 @@ class EpisodeArrays:
 
     window: ScoreWindow  # raw scores of the last m + 1 transitions
     score: jax.Array  # float32[N, E]: smoothed E_t of the current observation
+    # The episode's transitions for the model, one row per step: phi(x) [P], the targets
+    # y [4] and the squared error e [1] under this episode's coefficients, [T, N, P + 5, E];
+    # they enter the statistics once, at the episode's end (one large product instead of
+    # T small ones: the same weighted means, fewer operations per step).
+    transitions: jax.Array
 
 
 @struct.dataclass
@@ -141,6 +153,7 @@ class CCRState:
     coefficients: jax.Array  # float32[P, 4], fitted at the last episode start
     episode: EpisodeArrays | None = None
     discrete_actions: bool = struct.field(pytree_node=False, default=False)
+    episode_length: int = struct.field(pytree_node=False, default=0)  # T: rows of transitions
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,6 +181,7 @@ class CCR:
             statistics=dynamics.init_statistics(self.config.degree),
             coefficients=dynamics.init_coefficients(self.config.degree),
             discrete_actions=env.discrete_actions,
+            episode_length=env.episode_length,
         )
 
     def start_episode(self, state: CCRState, env_state: EnvState) -> tuple[CCRState, jax.Array]:
@@ -176,10 +190,12 @@ class CCR:
         chex.assert_rank(obs, 3)
         num_robots, _, num_envs = obs.shape
         score = jnp.zeros((num_robots, num_envs), jnp.float32)
+        rows = dynamics.num_features(self.config.degree) + dynamics.NUM_OUTPUTS + 1
         state = state.replace(
             coefficients=dynamics.fit(state.statistics, self.config.ridge),
             episode=EpisodeArrays(
-                window=init_window(self.config.window, num_robots, num_envs), score=score
+                window=init_window(self.config.window, num_robots, num_envs), score=score,
+                transitions=jnp.zeros((state.episode_length, num_robots, rows, num_envs)),
             ),
         )
         shared = jnp.zeros((num_robots, num_robots - 1, num_envs), obs.dtype)
@@ -208,32 +224,33 @@ class CCR:
         features = dynamics.polynomial_features(
             dynamics.model_inputs(own_state, command), config.degree
         )
-        predicted_targets = jnp.einsum("npe,pk->nke", features, state.coefficients)
-        predicted = jnp.concatenate(
-            [own_state[:, 0:2] + predicted_targets[:, 0:2], predicted_targets[:, 2:4]], axis=1
-        )  # s_hat_{t+1} = (p_t + dp_hat, v_hat)
-        raw_score = emergency_score(predicted, next_own_state)
-        statistics = dynamics.accumulate_features(
-            state.statistics,
-            features,
-            dynamics.model_targets(own_state, next_own_state),
-            raw_score,  # |s_hat - s|^2 is the squared residual of the targets
-            config.tolerance,
+        predicted = jnp.einsum("npe,pk->nke", features, state.coefficients)  # y_hat
+        targets = dynamics.model_targets(own_state, next_own_state)  # y = (dp, v_{t+1})
+        # s_hat - s = (p_t + dp_hat - p_{t+1}, v_hat - v_{t+1}) = y_hat - y, so the score
+        # |s_hat - s|^2 is computed on the model's targets.
+        raw_score = emergency_score(predicted, targets)
+        episode = state.episode
+        transitions = jax.lax.dynamic_update_index_in_dim(
+            episode.transitions,
+            jnp.concatenate([features, targets, raw_score[:, None]], axis=1),
+            jnp.minimum(episode.window.count, state.episode_length - 1),
+            axis=0,
         )
-        window = push_score(state.episode.window, raw_score)
+        window = push_score(episode.window, raw_score)
         next_score = smoothed_score(window)
-        position, next_position = own_state[:, 0:2], next_own_state[:, 0:2]
-        reward_in = intrinsic_reward(
-            state.episode.score, position, next_position, config.comm_range, state.params["lam"]
+        # What the robots observe of each other (distances, directions) gives the pairs.
+        displacement = next_own_state[:, 0:2] - own_state[:, 0:2]
+        reward_in = intrinsic_reward_from_observation(
+            episode.score, obs, displacement, config.comm_range, state.params["lam"]
         )
-        shared = shared_scores(next_score, next_position, config.comm_range)
+        shared = shared_scores_from_observation(next_score, next_obs, config.comm_range)
         ccr_state = jnp.where(
             next_score > config.sensing_threshold,
             SENSING_DANGER,
             jnp.where(jnp.abs(reward_in) > config.activation_threshold, ACTIVATED, STANDBY),
         ).astype(jnp.int32)
         state = state.replace(
-            statistics=statistics, episode=EpisodeArrays(window=window, score=next_score)
+            episode=EpisodeArrays(window=window, score=next_score, transitions=transitions)
         )
         info = {
             "emergency_score": next_score,
@@ -248,5 +265,22 @@ class CCR:
         )
 
     def end_episode(self, state: CCRState) -> CCRState:
-        """Drops the per-episode arrays: what remains (model, params) is independent of ``E``."""
-        return state.replace(episode=None)
+        """Adds the episode's transitions to the model's statistics (robust weights under the
+        episode's coefficients) and drops the per-episode arrays: what remains (model,
+        params) is independent of ``E``."""
+        episode = state.episode
+        if episode is None:
+            return state
+        transitions = episode.transitions  # [T, N, P + 5, E]
+        steps, num_robots, rows, num_envs = transitions.shape
+        p = rows - dynamics.NUM_OUTPUTS - 1
+        taken = (jnp.arange(steps) < episode.window.count)[:, None, None]  # [T, 1, 1]
+        # One batch of T x E samples per robot: [N, rows, T E].
+        samples = jnp.moveaxis(transitions, 0, 2).reshape(num_robots, rows, steps * num_envs)
+        error = jnp.where(taken, transitions[:, :, -1], jnp.inf)  # slots not taken: weight 0
+        error = jnp.moveaxis(error, 0, 1).reshape(num_robots, steps * num_envs)
+        statistics = dynamics.accumulate_features(
+            state.statistics, samples[:, :p], samples[:, p:p + dynamics.NUM_OUTPUTS], error,
+            self.config.tolerance,
+        )
+        return state.replace(statistics=statistics, episode=None)
