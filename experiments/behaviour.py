@@ -42,6 +42,7 @@ import jax
 
 from ccrjax.analysis import arrival_analysis
 from ccrjax.plots import draw_rank_bars
+from ccrjax.run_folder import git_commit
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import train_grid
 from ccrjax.training import TrainConfig
@@ -90,6 +91,8 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
         "centre_distance_per_seed": {  # [seeds, rank]
             v: analyses[v]["centre_distance"].mean(axis=1).tolist() for v in ("plain", "ccr")},
         "seeds": seeds,
+        "command": " ".join(["python experiments/behaviour.py", *sys.argv[1:]]),
+        "commit": git_commit(),
         "episodes_per_seed": episodes,
         "reach": reach,
         "lam": lam,
