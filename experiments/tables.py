@@ -1,6 +1,6 @@
 """The paper's Tables I and II, with seeds and confidence intervals: ``make tables``.
 
-    python experiments/tables.py                       # the full grid, 5 seeds (about 50 min)
+    python experiments/tables.py                       # the full grid, 5 seeds (about 45 min)
     python experiments/tables.py --seeds 10 --seed-offset 100   # fresh seeds, more of them
     python experiments/tables.py --quick --out /tmp/q  # a tiny budget, for the tests
 
@@ -13,7 +13,10 @@ exactly), and CCR; each trains all its runs at once, sharded over every device
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json`` with its per-seed results, curves and
 behaviour measurements; a re-run skips the cells already there (if they were made with
-the same settings), so a killed run loses only the cells in progress. Then it writes:
+the same settings), so a killed run loses only the cells in progress. Every run of the
+script is recorded in ``<out>/invocations.json`` (command, commit, date, wall time, programs
+trained, whether it finished), rewritten after each program, so a run that is killed keeps
+its record. Then it writes:
 
 * ``<out>/tables.md``: Table I (dangerous-behaviour frequency) and Table II (success
   rate) in the paper's layout, each cell our mean and 95% interval over seeds beside the
@@ -40,6 +43,7 @@ import dataclasses
 import json
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -221,9 +225,12 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     return cells
 
 
-def run_grid(settings: Settings, out: Path, log) -> tuple[dict, int]:
+def run_grid(settings: Settings, out: Path, log,
+             on_program_done: Callable[[int], None] = lambda trained: None
+             ) -> tuple[dict, int]:
     """Trains every missing cell (compiling the next program while one trains); returns
-    the cells by (scenario, algo, variant) and the number of programs trained."""
+    the cells by (scenario, algo, variant) and the number of programs trained.
+    ``on_program_done(trained)`` is called once a program's cells are written."""
     jobs = []
     for scenario in SCENARIOS:
         for algo in ALGOS:
@@ -261,6 +268,7 @@ def run_grid(settings: Settings, out: Path, log) -> tuple[dict, int]:
             log(f"[{number}/{len(todo)}] {job.name}: trained {len(runs.seeds)} runs in "
                 f"{runs.run_s:.0f} s (compiled in {runs.compile_s:.0f} s)")
             job.training = None  # free the compiled program
+            on_program_done(number)
     return cells, len(todo)
 
 
@@ -436,6 +444,8 @@ def tables_markdown(result: dict) -> str:
         "",
         *(f"* `{run['command']}` at commit `{run['commit']}`, {run['date']}: trained "
           f"{run['programs_trained']} of 18 programs, wall time {run['wall_time_s'] / 60:.1f} min"
+          + ("" if run.get("finished", True) else
+             f" (stopped before the end{': ' + run['note'] if run.get('note') else ''})")
           for run in result["invocations"]),
         "",
         f"{settings['seeds']} seeds per cell (seeds {settings['seed_offset']} to "
@@ -612,6 +622,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+INVOCATIONS = "invocations.json"
+
+
+def earlier_invocations(out: Path, settings: Settings) -> list[dict[str, Any]]:
+    """The records of earlier runs of this script that made cells with these settings:
+    from ``invocations.json`` (kept up to date while a run trains, so killed runs are
+    there too), else from an older ``tables.json``; none when the settings changed."""
+    for name in (INVOCATIONS, "tables.json"):
+        try:
+            old = json.loads((out / name).read_text())
+        except (OSError, ValueError):
+            continue
+        if old.get("settings") == dataclasses.asdict(settings):
+            return list(old.get("invocations", []))
+        return []
+    return []
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.quick and args.out is None:
@@ -634,16 +662,22 @@ def main(argv: list[str] | None = None) -> int:
                              *(argv if argv is not None else sys.argv[1:])]),
         "commit": git_commit(),  # the code this run trains with (+dirty: uncommitted changes)
         "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+        "finished": False,
     }
-    cells, trained = run_grid(settings, out, log)
-    invocation.update(wall_time_s=time.perf_counter() - start, programs_trained=trained)
-    previous: list[dict[str, Any]] = []
-    try:  # earlier runs that made some of these cells
-        old = json.loads((out / "tables.json").read_text())
-        if old.get("settings") == dataclasses.asdict(settings):
-            previous = list(old.get("invocations", []))
-    except (OSError, ValueError):
-        pass
+    out.mkdir(parents=True, exist_ok=True)
+    previous = earlier_invocations(out, settings)
+
+    def record(trained: int, finished: bool = False) -> None:
+        # Rewritten after every program, so an invocation that is killed keeps its record.
+        invocation.update(wall_time_s=time.perf_counter() - start, programs_trained=trained,
+                          finished=finished)
+        ledger = {"settings": dataclasses.asdict(settings),
+                  "invocations": [*previous, invocation]}
+        write_atomic(out / INVOCATIONS, json.dumps(ledger, indent=1) + "\n")
+
+    record(0)
+    cells, trained = run_grid(settings, out, log, record)
+    record(trained, finished=True)
     result = summary(cells, settings, [*previous, invocation])
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))

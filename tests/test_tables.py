@@ -87,6 +87,38 @@ def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run,
     assert "17 of 18 programs already done; 1 to train" in log
     assert missing.exists()
     assert kept.read_text() == before
+    runs = json.loads((out / "tables.json").read_text())["invocations"]
+    assert [(r["programs_trained"], r["finished"]) for r in runs] == [(18, True), (1, True)]
+
+
+def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
+        tables, quick_run, monkeypatch, capsys):
+    out = quick_run
+    for name in ("strong_wind-maddpg-ccr.json", "strong_wind-maac-ccr.json"):
+        (out / "cells" / name).unlink()
+    real_cells_of, calls = tables.cells_of, []
+
+    def killed_during_the_second_program(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_cells_of(*args)
+
+    monkeypatch.setattr(tables, "cells_of", killed_during_the_second_program)
+    with pytest.raises(KeyboardInterrupt):
+        tables.main(["--quick", "--out", str(out)])
+    ledger = json.loads((out / "invocations.json").read_text())["invocations"]
+    assert (ledger[-1]["programs_trained"], ledger[-1]["finished"]) == (1, False)
+    assert (out / "cells" / "strong_wind-maddpg-ccr.json").exists()
+    assert not (out / "cells" / "strong_wind-maac-ccr.json").exists()
+
+    monkeypatch.setattr(tables, "cells_of", real_cells_of)
+    capsys.readouterr()
+    assert tables.main(["--quick", "--out", str(out)]) == 0
+    assert "17 of 18 programs already done; 1 to train" in capsys.readouterr().err
+    runs = json.loads((out / "tables.json").read_text())["invocations"]
+    assert [(r["programs_trained"], r["finished"]) for r in runs][-2:] == [(1, False), (1, True)]
+    assert "stopped before the end" in (out / "tables.md").read_text()
 
 
 def test_quick_mode_refuses_to_write_over_the_committed_results(tables, capsys):
