@@ -41,7 +41,7 @@ from pathlib import Path
 import jax
 
 from ccrjax.analysis import arrival_analysis
-from ccrjax.plots import draw_rank_bars
+from ccrjax.plots import draw_obstacle_distances
 from ccrjax.run_folder import git_commit
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import train_grid
@@ -102,13 +102,8 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
 
 def draw_figure(result: dict, path: Path) -> None:
     """Per arrival rank: average distance to the obstacle's centre, plain vs CCR, with CIs."""
-    draw_rank_bars(
-        {"MADDPG": result["centre_distance_per_seed"]["plain"],
-         "MADDPG+CCR": result["centre_distance_per_seed"]["ccr"]},
-        path, xlabel="robot, in order of arrival at the obstacle",
-        ylabel="average distance to obstacle centre",
-        title="hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
-    )
+    distances = result["centre_distance_per_seed"]
+    draw_obstacle_distances(distances["plain"], distances["ccr"], path)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -593,15 +593,10 @@ def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
 
 
 def draw_distances(plain: dict, ccr: dict, path: Path) -> None:
-    from ccrjax.plots import draw_rank_bars
+    from ccrjax.plots import draw_obstacle_distances
 
-    draw_rank_bars(
-        {"MADDPG": plain["arrival"]["centre_distance"],
-         "MADDPG+CCR": ccr["arrival"]["centre_distance"]},
-        path, xlabel="robot, in order of arrival at the obstacle",
-        ylabel="average distance to the obstacle centre",
-        title="hidden obstacle: distance kept (mean, 95% CI over seeds)",
-    )
+    draw_obstacle_distances(plain["arrival"]["centre_distance"],
+                            ccr["arrival"]["centre_distance"], path)
 
 
 # ---------------------------------------------------------------------------- command
