@@ -1,6 +1,6 @@
 """The paper's Tables I and II, with seeds and confidence intervals: ``make tables``.
 
-    python experiments/tables.py                       # the full grid, 5 seeds (about 45 min)
+    python experiments/tables.py                       # the full grid, 5 seeds (42-50 min)
     python experiments/tables.py --seeds 10 --seed-offset 100   # fresh seeds, more of them
     python experiments/tables.py --quick --out /tmp/q  # a tiny budget, for the tests
 
