@@ -7,10 +7,11 @@ axis first:
 
 =================================  =========================================
 ``state.obs``                      ``float32[N, observation_size, B]``
-``state.reward``                   ``float32[N, B]``: ``-|p_i - destination|``
+``state.reward``                   ``float32[N, B]``: ``-|p_i - target_i|``
 ``state.done``                     ``float32[B]``: the episode ended this step
 ``state.metrics["danger"]``        ``float32[N, B]``: 1 while in danger
-``state.metrics["success"]``       ``float32[N, B]``: 1 once the task is done
+``state.metrics["success"]``       ``float32[N, B]``: 1 while in the target area
+``state.metrics["target_distance"]`` ``float32[N, B]``: ``|p_i - target_i|``
 ``state.metrics["hazard_distance"]`` ``float32[N, B]``: ``|p_i - hazard centre|``
 continuous action                  ``float[N, 2, B]`` in ``[-1, 1]^2``
 discrete action                    ``int[N, B]`` in {none, -x, +x, -y, +y}
@@ -19,8 +20,13 @@ discrete action                    ``int[N, B]`` in {none, -x, +x, -y, +y}
 Robot ``i`` observes, in this order (``observation_size = 4 + 3 (N - 1) + 3 + H``):
 its position and velocity (4); for every other robot ``j`` in increasing index
 order, the distance ``|p_j - p_i|`` and the unit direction ``(p_j - p_i) / |p_j - p_i|``
-(3 each); the distance and unit direction to the destination (3); the ``H``
-hazard features its scenario allows (:mod:`ccrjax.scenarios`).
+(3 each); the distance and unit direction to its own target point in the target
+area (3); the ``H`` hazard features its scenario allows (:mod:`ccrjax.scenarios`).
+
+A robot succeeds when it is in the target area at the end of the episode
+(``metrics["success"]`` of the last step): the paper's robots "navigate to a
+target point", so reaching the far side of a hazard and then wandering off, or
+passing through the area and overshooting, is no success.
 
 Episodes have a fixed length and all ``B`` environments run in lockstep, so the
 episode clock is one scalar. :meth:`CCREnv.step` resets every environment when
@@ -48,7 +54,13 @@ import numpy as np
 from flax import struct
 
 from ccrjax.scenarios import SCENARIOS, Hazard, Layout, Scenario, make_scenario
-from ccrjax.scenarios.base import distance_to_centre
+from ccrjax.scenarios.base import (
+    distance_to,
+    distance_to_centre,
+    in_target_area,
+    start_positions,
+    target_positions,
+)
 from ccrjax.world import PhysicsParams, action_to_force, physics_step
 
 # brax pulls in MuJoCo's MJX, which prints to stdout when the optional NVIDIA Warp
@@ -68,8 +80,7 @@ class WorldState:
     position: jax.Array  # float32[N, 2, B]
     velocity: jax.Array  # float32[N, 2, B]
     hazard: Hazard  # arrays [2, B]
-    hazard_memory: jax.Array  # float32[N, M, B]: what the hazard's physics remembers per robot
-    succeeded: jax.Array  # bool[N, B]: the robot has accomplished the task this episode
+    target: jax.Array  # float32[N, 2, B]: each robot's own destination in the target area
     time: jax.Array  # int32[]: steps since the episode started (shared by the batch)
     key: jax.Array  # PRNG key for hazard noise and the next reset
 
@@ -94,9 +105,8 @@ class CCREnv(Env):
       scenario: a name in ``ccrjax.scenarios.SCENARIOS`` or a ``Scenario`` object.
       num_robots: team size ``N``, 2 to 64 (default 5).
       num_envs: environments ``B`` stepped together.
-      episode_length: steps per episode. The default 50 (5 simulated seconds) gives
-        a robot at full speed time to go around the longest default obstacle;
-        the MPE's tasks use 25.
+      episode_length: steps per episode: the MPE's 25 by default (2.5 simulated
+        seconds; the straight trip at full speed takes about 18 of them).
       robot_radius: disc radius (the MPE's default 0.05).
       sensitivity: force per unit action (the MPE's default 5).
       discrete_actions: five discrete actions instead of a 2-D continuous force.
@@ -111,7 +121,7 @@ class CCREnv(Env):
         *,
         num_robots: int = 5,
         num_envs: int = 1,
-        episode_length: int = 50,
+        episode_length: int = 25,
         robot_radius: float = 0.05,
         sensitivity: float = 5.0,
         discrete_actions: bool = False,
@@ -148,6 +158,8 @@ class CCREnv(Env):
         self.discrete_actions = discrete_actions
         self.layout = layout or Layout()
         self.physics = physics or PhysicsParams()
+        self.layout.check_team(self.num_robots, self.robot_radius)
+        self.scenario.check_layout(self.layout, self.robot_radius)
         # For robot i, the indices of the other robots in increasing order: [N, N - 1].
         self._others = np.array(
             [[j for j in range(self.num_robots) if j != i] for i in range(self.num_robots)],
@@ -176,24 +188,20 @@ class CCREnv(Env):
 
     @property
     def goal(self) -> jax.Array:
-        """``float32[2]``: the destination."""
+        """``float32[2]``: the centre of the target area."""
         return jnp.asarray(self.layout.goal, jnp.float32)
 
     # ------------------------------------------------------------------ pieces
     def initial_world(self, key: jax.Array) -> WorldState:
         """Draws start positions and hazards for every environment of the batch."""
         key, position_key, hazard_key = jax.random.split(key, 3)
-        shape = (self.num_robots, 2, self.num_envs)
-        centre = jnp.asarray(self.layout.start_centre, jnp.float32)[None, :, None]
-        half = jnp.asarray(self.layout.start_half_extent, jnp.float32)[None, :, None]
-        position = centre + half * jax.random.uniform(position_key, shape, minval=-1.0, maxval=1.0)
+        position = start_positions(position_key, self.layout, self.num_robots, self.num_envs)
         hazard = self.scenario.sample_hazard(hazard_key, self.layout, self.num_envs)
         return WorldState(
             position=position,
-            velocity=jnp.zeros(shape, jnp.float32),
+            velocity=jnp.zeros_like(position),
             hazard=hazard,
-            hazard_memory=self.scenario.init_memory(hazard, position),
-            succeeded=self.scenario.reached(hazard, position, self.layout),
+            target=target_positions(position, self.layout),
             time=jnp.zeros((), jnp.int32),
             key=key,
         )
@@ -211,8 +219,8 @@ class CCREnv(Env):
         others = jnp.stack([distance, rel_x * inverse, rel_y * inverse], axis=2)
         others = others.reshape(self.num_robots, 3 * (self.num_robots - 1), self.num_envs)
 
-        to_goal_x = self.layout.goal[0] - position[:, 0]  # [N, B]
-        to_goal_y = self.layout.goal[1] - position[:, 1]
+        to_goal_x = world.target[:, 0] - position[:, 0]  # [N, B]
+        to_goal_y = world.target[:, 1] - position[:, 1]
         goal_distance = jnp.sqrt(to_goal_x * to_goal_x + to_goal_y * to_goal_y)
         inverse_goal = jnp.where(
             goal_distance > 0.0, 1.0 / jnp.where(goal_distance > 0.0, goal_distance, 1.0), 0.0
@@ -226,18 +234,19 @@ class CCREnv(Env):
         )
 
     def reward(self, world: WorldState) -> jax.Array:
-        """``-|p_i - destination|`` per robot, ``float32[N, B]``."""
-        to_goal_x = world.position[:, 0] - self.layout.goal[0]
-        to_goal_y = world.position[:, 1] - self.layout.goal[1]
-        return -jnp.sqrt(to_goal_x * to_goal_x + to_goal_y * to_goal_y)
+        """``-|p_i - target_i|`` per robot, ``float32[N, B]``: the paper's distance reward."""
+        return -distance_to(world.position, world.target)
 
     def metrics(self, world: WorldState) -> dict[str, jax.Array]:
-        """Per robot and environment: in danger, succeeded, distance to the hazard centre."""
+        """Per robot and environment, at this step: in danger, in the target area (a
+        success if it is the episode's last step), the distance to its target and to
+        the hazard's centre."""
         return {
             "danger": self.scenario.in_danger(world.hazard, world.position, self.radius).astype(
                 jnp.float32
             ),
-            "success": world.succeeded.astype(jnp.float32),
+            "success": in_target_area(world.position, self.layout).astype(jnp.float32),
+            "target_distance": distance_to(world.position, world.target),
             "hazard_distance": distance_to_centre(world.position, world.hazard),
         }
 
@@ -257,27 +266,18 @@ class CCREnv(Env):
     def advance(self, world: WorldState, action: jax.Array, noise: jax.Array) -> WorldState:
         """The deterministic part of a step, given this step's hazard noise.
 
-        Forces (actions, hazard), MPE physics, success bookkeeping and the clock;
-        ``noise`` comes from ``scenario.step_noise``.
+        Forces (actions, hazard), MPE physics, the hazard's constraint (the solid
+        obstacle) and the clock; ``noise`` comes from ``scenario.step_noise``.
         """
         force = action_to_force(action, self.sensitivity, self.discrete_actions)
-        force = force + self.scenario.hazard_force(
-            world.hazard, world.position, self.radius, noise, self.physics, world.hazard_memory
-        )
+        force = force + self.scenario.hazard_force(world.hazard, world.position, noise)
         position, velocity = physics_step(
             world.position, world.velocity, self.radius, force, self.physics
         )
         position, velocity = self.scenario.constrain(
-            world.hazard, world.hazard_memory, position, velocity, self.radius
+            world.hazard, world.position, position, velocity, self.radius
         )
-        reached = self.scenario.reached(world.hazard, position, self.layout)
-        return world.replace(
-            position=position,
-            velocity=velocity,
-            hazard_memory=self.scenario.update_memory(world.hazard, world.hazard_memory, position),
-            succeeded=world.succeeded | reached,
-            time=world.time + 1,
-        )
+        return world.replace(position=position, velocity=velocity, time=world.time + 1)
 
     def _state(self, world: WorldState, reward: jax.Array, done: jax.Array) -> State:
         return State(

@@ -55,12 +55,12 @@ from ccrjax import cli
 from ccrjax.analysis import arrival_analysis
 from ccrjax.learners.ddpg import DDPGConfig
 from ccrjax.learners.maac import MAACConfig
+from ccrjax.paper import PAPER, PAPER_HEADLINES, SCENARIOS
 from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import GridRuns, GridTraining
 from ccrjax.training import TrainConfig
 
-SCENARIOS = ("hidden_obstacle", "turbulence", "strong_wind")  # the paper's column order
 ALGOS = ("iddpg", "maddpg", "maac")
 VARIANTS = ("plain", "pessimistic", "ccr")
 LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
@@ -70,42 +70,6 @@ SCENARIO_NAMES = {"hidden_obstacle": "hidden obstacle", "turbulence": "turbulenc
 METRICS = (*EVAL_METRICS, "cumulative_danger_steps")
 
 # The paper's Tables I and II (percent), by (scenario, learner, variant).
-_PAPER_ROWS = {
-    "danger_frequency": {
-        ("iddpg", "plain"): (40.86, 48.03, 32.63),
-        ("iddpg", "pessimistic"): (22.80, 54.70, 19.97),
-        ("iddpg", "ccr"): (8.41, 23.35, 19.24),
-        ("maddpg", "plain"): (40.92, 52.35, 19.22),
-        ("maddpg", "pessimistic"): (22.42, 57.86, 21.96),
-        ("maddpg", "ccr"): (15.27, 34.97, 17.97),
-        ("maac", "plain"): (69.34, 52.25, 12.15),
-        ("maac", "pessimistic"): (42.87, 25.74, 25.73),
-        ("maac", "ccr"): (28.89, 9.73, 16.25),
-    },
-    "success_rate": {
-        ("iddpg", "plain"): (36.22, 97.48, 73.44),
-        ("iddpg", "pessimistic"): (73.16, 56.18, 72.45),
-        ("iddpg", "ccr"): (88.69, 70.34, 81.74),
-        ("maddpg", "plain"): (33.80, 96.62, 70.40),
-        ("maddpg", "pessimistic"): (73.53, 54.77, 79.75),
-        ("maddpg", "ccr"): (75.79, 84.00, 77.15),
-        ("maac", "plain"): (1.71, 97.19, 84.26),
-        ("maac", "pessimistic"): (8.43, 78.41, 78.45),
-        ("maac", "ccr"): (26.71, 67.50, 84.51),
-    },
-}
-PAPER = {
-    metric: {(scenario, algo, variant): values[k] / 100.0
-             for (algo, variant), values in rows.items()
-             for k, scenario in enumerate(SCENARIOS)}
-    for metric, rows in _PAPER_ROWS.items()
-}
-PAPER_HEADLINES = {
-    "danger_reduction_vs_plain": 0.4224,
-    "danger_reduction_vs_pessimistic": 0.3837,
-    "success_change_vs_pessimistic": 0.3590,
-    "training_danger_share_maddpg_hidden_obstacle": 0.2809,
-}
 RESULTS = Path(__file__).resolve().parent / "results"
 
 

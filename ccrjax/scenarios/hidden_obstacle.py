@@ -6,17 +6,15 @@ coordinates of the obstacle. The task is considered successful for each robot th
 arrives at the other side of the obstacle."
 
 The obstacle is an axis-aligned rectangle across the way: ``thickness`` along the
-direction of travel (x, fixed, 0.6 by default) and a random ``length`` across it
-(y, uniform in ``length_range``). Robots collide with it through the MPE's soft
-contact law (:func:`ccrjax.world.rectangle_contact_force`). A robot at full speed
-(about 0.2 per step) gets up to about 0.35 deep into the soft wall before the contact
-force stops it (the MPE moves bodies with their old velocity before forces act), so
-the obstacle remembers where each robot last was outside and pushes it back out that
-way, and a robot that crossed the whole obstacle within one step (robots piling
-into it bounce off each other at up to about 8 units/s) is put back at the face it
-came in through (:meth:`HiddenObstacle.constrain`). ``tests/test_scenarios.py``
-drives single robots, columns and a pile of 16 into it at full speed to check.
-A robot observes one feature: whether it touches the obstacle.
+direction of travel (x) and a random ``length`` across it (y, uniform in
+``length_range``); its centre's height is drawn from the layout's hazard range, so
+the shorter way round is above in some episodes and below in others. It is
+**solid**: after the physics step, a robot whose motion would take its disc into the
+obstacle is stopped at the obstacle's surface and loses its velocity into it
+(:func:`ccrjax.world.rectangle_stop`), at any speed, angle, corner or pile; robots
+still collide with each other through the MPE's contact law. A robot observes one
+feature: whether it touches the obstacle (its disc within ``touch_tolerance`` of the
+surface), which is also the paper's dangerous state ("colliding with the obstacle").
 """
 
 from __future__ import annotations
@@ -34,7 +32,7 @@ from ccrjax.scenarios.base import (
     check_range,
     sample_centre,
 )
-from ccrjax.world import rectangle_contact_force, rectangle_distance
+from ccrjax.world import rectangle_distance, rectangle_stop
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,12 +42,37 @@ class HiddenObstacle(Scenario):
     name = "hidden_obstacle"
     hazard_feature_size = 1
 
-    thickness: float = 0.6
-    length_range: tuple[float, float] = (0.6, 1.4)
+    thickness: float = 0.4
+    length_range: tuple[float, float] = (1.2, 2.0)
+    touch_tolerance: float = 0.01
 
     def __post_init__(self) -> None:
         check_positive("HiddenObstacle", "thickness", self.thickness)
         check_range("HiddenObstacle", "length_range", self.length_range, positive=True)
+        check_positive("HiddenObstacle", "touch_tolerance", self.touch_tolerance, allow_zero=True)
+
+    def max_half_extent(self) -> tuple[float, float]:
+        return (0.5 * float(self.thickness), 0.5 * float(self.length_range[1]))
+
+    def check_layout(self, layout: Layout, robot_radius: float) -> None:
+        """Also refuses an obstacle that can block every way past it.
+
+        Robots are not walled in, but the arena frames the task: between the
+        longest obstacle, drawn furthest from the middle, and the arena's edge there
+        must be room for two robots side by side on the shorter side.
+        """
+        super().check_layout(layout, robot_radius)
+        half_length = 0.5 * float(self.length_range[1])
+        low_y, high_y = layout.hazard_y_range
+        arena_y = layout.arena_half_extent[1]
+        gap_above = arena_y - (low_y + half_length)
+        gap_below = (high_y - half_length) + arena_y
+        if max(gap_above, gap_below) < 4 * robot_radius:
+            raise ValueError(
+                f"HiddenObstacle.length_range {self.length_range} with Layout.hazard_y_range "
+                f"{layout.hazard_y_range} can block every way past the obstacle inside the "
+                f"arena |y| <= {arena_y}: shorten the obstacle"
+            )
 
     def sample_hazard(self, key: jax.Array, layout: Layout, batch: int) -> Hazard:
         centre_key, length_key = jax.random.split(key)
@@ -64,63 +87,18 @@ class HiddenObstacle(Scenario):
         )
 
     def touching(self, hazard: Hazard, position: jax.Array, radius: jax.Array) -> jax.Array:
-        """``bool[N, B]``: the robot's disc overlaps the obstacle."""
+        """``bool[N, B]``: the robot's disc is within ``touch_tolerance`` of the obstacle."""
         distance = rectangle_distance(position, hazard.centre, hazard.half_extent)
-        return distance < radius[:, None]
+        return distance <= radius[:, None] + self.touch_tolerance
 
-    def init_memory(self, hazard: Hazard, position: jax.Array) -> jax.Array:
-        """Where each robot's centre last was outside the obstacle: ``float32[N, 2, B]``."""
-        return position
-
-    def update_memory(self, hazard: Hazard, memory: jax.Array, position: jax.Array):
-        distance = rectangle_distance(position, hazard.centre, hazard.half_extent)
-        # Only points strictly outside are entry points (a point on a face is not).
-        return jnp.where((distance <= 0.0)[:, None], memory, position)
-
-    def constrain(self, hazard, memory, position, velocity, radius):
-        """Returns a robot that crossed the whole obstacle in one step to its entry face.
-
-        The soft contact force cannot stop a disc that moves further than the wall is
-        thick within one step (robots piling into the wall bounce off each other fast
-        enough). A robot whose last outside point (``memory``, before this step) was on
-        one side and which now lies beyond the opposite face, level with the obstacle,
-        went through it: it is put back just outside the face it came in through, its
-        velocity along that axis set to zero. Robots that did not cross are untouched.
-        """
-        centre, half = hazard.centre, hazard.half_extent
-        entry_x = memory[:, 0] - centre[0][None]
-        entry_y = memory[:, 1] - centre[1][None]
-        entry_out_x = jnp.abs(entry_x) - half[0][None]
-        entry_out_y = jnp.abs(entry_y) - half[1][None]
-        through_x = entry_out_x >= entry_out_y  # entered through an x face
-        side_x = jnp.where(entry_x >= 0.0, 1.0, -1.0)
-        side_y = jnp.where(entry_y >= 0.0, 1.0, -1.0)
-        rel_x = position[:, 0] - centre[0][None]
-        rel_y = position[:, 1] - centre[1][None]
-        beyond_x = (side_x * rel_x < -half[0][None]) & (jnp.abs(rel_y) < half[1][None])
-        beyond_y = (side_y * rel_y < -half[1][None]) & (jnp.abs(rel_x) < half[0][None])
-        outside_before = (entry_out_x > 0.0) | (entry_out_y > 0.0)
-        crossed_x = outside_before & through_x & beyond_x
-        crossed_y = outside_before & ~through_x & beyond_y
-        face_x = centre[0][None] + side_x * (half[0][None] + radius[:, None])
-        face_y = centre[1][None] + side_y * (half[1][None] + radius[:, None])
-        crossed = jnp.stack([crossed_x, crossed_y], axis=1)  # [N, 2, B]
-        position = jnp.where(crossed, jnp.stack([face_x, face_y], axis=1), position)
-        velocity = jnp.where(crossed, 0.0, velocity)
-        return position, velocity
-
-    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
-        """Contact with the obstacle; a robot inside is pushed back out the way it came."""
-        return rectangle_contact_force(
-            position, radius, hazard.centre, hazard.half_extent, physics, entry=memory
+    def constrain(self, hazard, previous, position, velocity, radius):
+        """Stops robots at the obstacle's surface (:func:`ccrjax.world.rectangle_stop`)."""
+        return rectangle_stop(
+            previous, position, velocity, radius, hazard.centre, hazard.half_extent
         )
 
     def in_danger(self, hazard, position, radius):
         return self.touching(hazard, position, radius)
-
-    def reached(self, hazard, position, layout):
-        far_side = hazard.centre[0] + hazard.half_extent[0]  # [B]
-        return position[:, 0] > far_side[None]
 
     def hazard_features(self, hazard, position, radius):
         return self.touching(hazard, position, radius)[:, None].astype(jnp.float32)

@@ -1,9 +1,8 @@
 """The task with no hazard: for calibrating dynamics models and checking that learners learn.
 
-Success, as in turbulence: the robot arrives in the target area. A *virtual*
-hazard centre is still drawn exactly as in the other scenarios, so that the
-paper's "average distance to the hazard centre" stays comparable; it exerts no
-force, is never observed and is never dangerous.
+A *virtual* hazard centre is still drawn exactly as in the other scenarios, so
+that the paper's "average distance to the hazard centre" stays comparable; it
+exerts no force, is never observed and is never dangerous.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ccrjax.scenarios.base import Hazard, Layout, Scenario, in_goal_area, sample_centre
+from ccrjax.scenarios.base import Hazard, Layout, Scenario, sample_centre
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,6 +22,9 @@ class Nominal(Scenario):
     name = "nominal"
     hazard_feature_size = 0
 
+    def max_half_extent(self) -> tuple[float, float]:
+        return (0.0, 0.0)
+
     def sample_hazard(self, key: jax.Array, layout: Layout, batch: int) -> Hazard:
         return Hazard(
             centre=sample_centre(key, layout, batch),
@@ -30,14 +32,8 @@ class Nominal(Scenario):
             direction=jnp.zeros((2, batch)),
         )
 
-    def hazard_force(self, hazard, position, radius, noise, physics, memory=None):
-        return jnp.zeros_like(position)
-
     def in_danger(self, hazard, position, radius):
         return jnp.zeros(position[:, 0].shape, bool)
-
-    def reached(self, hazard, position, layout):
-        return in_goal_area(position, layout)
 
     def hazard_features(self, hazard, position, radius):
         return jnp.zeros((position.shape[0], 0, position.shape[2]), jnp.float32)

@@ -1,0 +1,200 @@
+"""Calibration of the scenarios on reference controllers: ``python experiments/calibrate.py``.
+
+    python experiments/calibrate.py                         # 1024 episodes per row
+    python experiments/calibrate.py --episodes 64 --out /tmp/c   # small, for the tests
+
+The paper publishes no sizes, only its plain learners' danger and success (Tables I
+and II). ccrjax chooses the scenario parameters so that the hazard-blind go-to-goal
+controller, which heads for the target as a plain learner does, lands in the paper's
+plain regime, and so that the oracle, which knows the hazard and detours around it,
+shows the task can be done safely. Only reference controllers enter this choice:
+never CCR or the pessimistic baseline, whose results must not feed the environment's
+design. The bands (from the paper's plain rows):
+
+* turbulence: go-to-goal danger 40-55%, success >= 90%;
+* strong wind: go-to-goal danger 20-35%, success 60-90%;
+* hidden obstacle: go-to-goal danger >= 35%, success <= 40%;
+* every scenario: oracle success >= 80%, danger <= 5%; gaming policies success <= 5%.
+
+It prints, and writes to ``<out>/calibration.md`` and ``calibration.json``:
+
+1. every reference controller x scenario at the defaults (success, danger, final
+   distance to the target, distance to the hazard centre, return), the paper's
+   plain rows beside them, and whether each band holds;
+2. the trade-off behind each default: the main size parameter of each scenario
+   varied around its default, with the go-to-goal and oracle rows (a larger hazard
+   raises the go-to-goal danger but lengthens the oracle's detour).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from ccrjax.env import CCREnv
+from ccrjax.paper import PAPER
+from ccrjax.run_folder import git_commit, write_atomic
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
+
+SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
+METRICS = ("success_rate", "danger_frequency", "target_distance", "hazard_distance", "return")
+# (go-to-goal danger low, high, go-to-goal success low, high) per scenario.
+BANDS = {
+    "turbulence": (0.40, 0.55, 0.90, 1.00),
+    "strong_wind": (0.20, 0.35, 0.60, 0.90),
+    "hidden_obstacle": (0.35, 1.00, 0.00, 0.40),
+}
+ORACLE_SUCCESS, ORACLE_DANGER, GAMING_SUCCESS = 0.80, 0.05, 0.05
+# The trade-off tables: one parameter per scenario, varied around its default.
+SWEEPS = {
+    "turbulence": ("radius_range", [(0.6, 0.7), (0.75, 0.85), (0.9, 1.0)]),
+    "strong_wind": ("force", [6.0, 8.0, 10.0, 12.0, 15.0]),
+    "hidden_obstacle": ("length_range", [(0.6, 1.4), (1.0, 1.6), (1.2, 2.0), (1.6, 2.4)]),
+}
+PAPER_LEARNERS = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+
+
+def measure(scenario: str, controller: str, episodes: int, seed: int,
+            params: dict[str, Any] | None = None) -> dict[str, float]:
+    """One controller's metrics over ``episodes`` episodes of one scenario."""
+    env = CCREnv(scenario, num_envs=episodes, scenario_params=params)
+    metrics = jax.jit(lambda key: evaluate_controller(env, controller, key))(
+        jax.random.PRNGKey(seed)
+    )
+    return {name: float(metrics[name]) for name in METRICS}
+
+
+def band_checks(rows: dict[str, dict[str, dict[str, float]]]) -> list[dict[str, Any]]:
+    """Each band of the module docstring, its measured value and whether it holds."""
+    checks = []
+
+    def check(what: str, value: float, low: float, high: float) -> None:
+        checks.append({"check": what, "value": value, "low": low, "high": high,
+                       "holds": bool(low <= value <= high)})
+
+    for scenario, (d_low, d_high, s_low, s_high) in BANDS.items():
+        blind = rows[scenario]["go_to_goal"]
+        check(f"{scenario}: go-to-goal danger", blind["danger_frequency"], d_low, d_high)
+        check(f"{scenario}: go-to-goal success", blind["success_rate"], s_low, s_high)
+    for scenario in SCENARIOS:
+        oracle = rows[scenario]["oracle"]
+        check(f"{scenario}: oracle success", oracle["success_rate"], ORACLE_SUCCESS, 1.0)
+        check(f"{scenario}: oracle danger", oracle["danger_frequency"], 0.0, ORACLE_DANGER)
+        for gaming in GAMING:
+            check(f"{scenario}: {gaming} success", rows[scenario][gaming]["success_rate"],
+                  0.0, GAMING_SUCCESS)
+    return checks
+
+
+def _pct(value: float) -> str:
+    return f"{100 * value:.1f}%"
+
+
+def markdown(result: dict[str, Any]) -> str:
+    rows, lines = result["rows"], []
+    lines += [
+        "### Reference controllers x scenarios (defaults)", "",
+        f"{result['episodes']} episodes of 5 robots per row, seed {result['seed']}; "
+        "success: in the target area at the last step; danger: share of robot-steps in "
+        "danger; distances at the last step (target) and averaged over steps (hazard centre).",
+        "",
+        "| scenario | controller | success | danger | final distance to target | "
+        "distance to hazard centre | return |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for scenario in SCENARIOS:
+        for controller in CONTROLLERS:
+            m = rows[scenario][controller]
+            lines.append(
+                f"| {scenario} | {controller} | {_pct(m['success_rate'])} | "
+                f"{_pct(m['danger_frequency'])} | {m['target_distance']:.3f} | "
+                f"{m['hazard_distance']:.3f} | {m['return']:.1f} |"
+            )
+    lines += ["", "The paper's plain learners (Tables I and II), for comparison:", "",
+              "| scenario | learner | success | danger |", "|---|---|---|---|"]
+    for scenario in BANDS:
+        for algo, name in PAPER_LEARNERS.items():
+            key = (scenario, algo, "plain")
+            lines.append(f"| {scenario} | {name} | {_pct(PAPER['success_rate'][key])} | "
+                         f"{_pct(PAPER['danger_frequency'][key])} |")
+    lines += ["", "### Bands", "", "| check | value | band | holds |", "|---|---|---|---|"]
+    for c in result["checks"]:
+        lines.append(f"| {c['check']} | {_pct(c['value'])} | {_pct(c['low'])} to "
+                     f"{_pct(c['high'])} | {'yes' if c['holds'] else '**no**'} |")
+    lines += ["", "### Trade-offs around the defaults", "",
+              "| scenario | parameter | value | go-to-goal success | go-to-goal danger | "
+              "oracle success | oracle danger |", "|---|---|---|---|---|---|---|"]
+    for entry in result["sweeps"]:
+        blind, oracle = entry["go_to_goal"], entry["oracle"]
+        lines.append(
+            f"| {entry['scenario']} | {entry['parameter']} | {entry['value']} | "
+            f"{_pct(blind['success_rate'])} | {_pct(blind['danger_frequency'])} | "
+            f"{_pct(oracle['success_rate'])} | {_pct(oracle['danger_frequency'])} |"
+        )
+    lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` "
+              f"in {result['seconds']:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/calibrate.py",
+        description="Reference controllers x scenarios: the table that justifies the "
+                    "scenario defaults (about 2 minutes on a 2-core CPU).",
+    )
+    parser.add_argument("--episodes", type=int, default=1024,
+                        help="episodes (environments) per row (default 1024)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--no-sweeps", action="store_true",
+                        help="skip the trade-off tables around the defaults")
+    parser.add_argument("--out", type=Path, default=Path("runs/calibration"),
+                        help="folder for calibration.md and calibration.json "
+                             "(default runs/calibration)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be an integer >= 1, got {args.episodes}")
+    start = time.time()
+    rows = {s: {c: measure(s, c, args.episodes, args.seed) for c in CONTROLLERS}
+            for s in SCENARIOS}
+    sweeps = []
+    if not args.no_sweeps:
+        for scenario, (parameter, values) in SWEEPS.items():
+            for value in values:
+                params = {parameter: value}
+                sweeps.append({
+                    "scenario": scenario, "parameter": parameter, "value": value,
+                    **{c: measure(scenario, c, args.episodes, args.seed, params)
+                       for c in ("go_to_goal", "oracle")},
+                })
+    result = {
+        "episodes": args.episodes, "seed": args.seed, "rows": rows, "sweeps": sweeps,
+        "checks": band_checks(rows), "commit": git_commit(),
+        "command": " ".join(["python experiments/calibrate.py", *(argv or sys.argv[1:])]),
+        "seconds": time.time() - start,
+    }
+    text = markdown(result)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_atomic(args.out / "calibration.json", json.dumps(result, indent=1))
+    write_atomic(args.out / "calibration.md", text)
+    print(text)
+    failed = [c["check"] for c in result["checks"] if not c["holds"]]
+    print(f"{len(result['checks']) - len(failed)} of {len(result['checks'])} bands hold"
+          + (f"; outside: {', '.join(failed)}" if failed else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
