@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--robots", type=_int_at_least(MIN_ROBOTS, MAX_ROBOTS), default=5,
                         help="robots per environment (default: 5)")
     parser.add_argument("--steps", type=_int_at_least(1), default=100,
-                        help="steps per timed rollout (default: 100, two episodes of 50)")
+                        help="steps per timed rollout (default: 100, four episodes of 25)")
     parser.add_argument("--repeats", type=_int_at_least(1), default=5,
                         help="timed rollouts; the median is reported (default: 5)")
     parser.add_argument("--sampler", choices=("ccrjax", "uniform"), default="ccrjax",

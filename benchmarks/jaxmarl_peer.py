@@ -64,9 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--robots", type=_int_at_least(1), default=5,
                         help="agents (and landmarks) per environment (default: 5)")
     parser.add_argument("--steps", type=_int_at_least(1), default=100,
-                        help="steps per timed rollout (default: 100, two episodes of 50)")
-    parser.add_argument("--episode-length", type=_int_at_least(1), default=50,
-                        help="JaxMARL's max_steps (default: 50, as ours)")
+                        help="steps per timed rollout (default: 100, four episodes of 25)")
+    parser.add_argument("--episode-length", type=_int_at_least(1), default=25,
+                        help="JaxMARL's max_steps (default: 25, as ours)")
     parser.add_argument("--repeats", type=_int_at_least(1), default=5,
                         help="timed rollouts; the median is reported (default: 5)")
     parser.add_argument("--json", action="store_true",

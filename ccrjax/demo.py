@@ -75,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--robots", type=_robots, default=5,
                         help=f"team size, {MIN_ROBOTS} to {MAX_ROBOTS} (default: 5)")
     parser.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
-    parser.add_argument("--steps", type=_steps, default=50,
-                        help="episode length in steps (default: 50)")
+    parser.add_argument("--steps", type=_steps, default=25,
+                        help="episode length in steps (default: 25)")
     return parser
 
 

@@ -19,7 +19,8 @@ from ccrjax.stats import mean_ci_along
 
 PALETTE = ("#1f6fd1", "#d1495b", "#2a9d8f", "#e9a03b", "#6a4c93", "#8c8c8c")
 CURVE_METRICS = (
-    "success_rate", "danger_frequency", "return", "hazard_distance", "cumulative_danger_steps",
+    "success_rate", "target_distance", "danger_frequency", "return", "hazard_distance",
+    "cumulative_danger_steps",
 )
 
 

@@ -66,9 +66,6 @@ SCENARIO_TITLES = {
     "hidden_obstacle": "Hidden obstacle",
     "nominal": "Nominal (no hazard)",
 }
-# Scenarios whose task is to reach the target disc; elsewhere it is to pass the hazard.
-TARGET_AREA_SCENARIOS = ("turbulence", "nominal")
-
 HAZARD_COLOURS = {
     "turbulence": "#e8743b",
     "strong_wind": "#4fb6c9",
@@ -76,6 +73,7 @@ HAZARD_COLOURS = {
     "nominal": "#9a9a9a",
 }
 GOAL_COLOUR = "#2ca02c"
+FAILURE_COLOUR = "#d62728"
 TRAIL_COLOUR = "#8c8c8c"
 
 
@@ -97,8 +95,9 @@ class EpisodeRecord:
       positions: ``float[T + 1, N, 2]``: every robot's position at every step,
         the reset's first.
       robot_radius: disc radius of the robots.
-      goal: the destination ``(x, y)``.
-      goal_radius: radius of the target area around ``goal``.
+      goal: the centre of the target area ``(x, y)``.
+      goal_radius: radius of the target area around ``goal``: a robot whose
+        centre is inside it at the last step succeeded.
       hazard_centre: ``float[2]``.
       hazard_half_extent: ``float[2]`` (a circle's radius twice; a rectangle's
         half width and half height).
@@ -198,6 +197,12 @@ class EpisodeRecord:
     def num_robots(self) -> int:
         """``N``."""
         return self.positions.shape[1]
+
+    @property
+    def succeeded(self) -> np.ndarray:
+        """``bool[N]``: each robot ends inside the target area (the task's success)."""
+        offset = self.positions[-1] - np.asarray(self.goal)
+        return np.hypot(offset[:, 0], offset[:, 1]) < self.goal_radius
 
 
 # --------------------------------------------------------------------------- rollout
@@ -317,7 +322,7 @@ def _extent(record: EpisodeRecord, margin: float = 0.25) -> tuple[float, float, 
     """Axis limits holding the robots, the hazard and the target, with a margin."""
     xs = [record.positions[..., 0].min(), record.positions[..., 0].max()]
     ys = [record.positions[..., 1].min(), record.positions[..., 1].max()]
-    reach = record.goal_radius if record.scenario in TARGET_AREA_SCENARIOS else 0.1
+    reach = record.goal_radius
     xs += [record.goal[0] - reach, record.goal[0] + reach]
     ys += [record.goal[1] - reach, record.goal[1] + reach]
     half = record.hazard_half_extent
@@ -364,22 +369,29 @@ def _draw_hazard(ax: Any, record: EpisodeRecord) -> list[Any]:
 
 
 def _draw_target(ax: Any, record: EpisodeRecord) -> list[Any]:
-    """Draws the destination (target disc or point) and returns its legend handles."""
-    goal = record.goal
-    if record.scenario in TARGET_AREA_SCENARIOS:
-        ax.add_patch(Circle(goal, record.goal_radius, facecolor=GOAL_COLOUR, alpha=0.2,
-                            edgecolor=GOAL_COLOUR, linewidth=1.5, zorder=1))
-        ax.plot(*goal, marker="*", color=GOAL_COLOUR, markersize=11, linestyle="none", zorder=2)
-        return [Patch(facecolor=GOAL_COLOUR, alpha=0.3, edgecolor=GOAL_COLOUR,
-                      label="target area")]
-    # Success is to cross the hazard's far side: mark that line and the destination.
-    far_side = record.hazard_centre[0] + record.hazard_half_extent[0]
-    ax.axvline(far_side, color=GOAL_COLOUR, linestyle=":", linewidth=1.2, alpha=0.8, zorder=1)
-    ax.plot(*goal, marker="*", color=GOAL_COLOUR, markersize=15, markeredgecolor="white",
-            linestyle="none", zorder=2)
-    return [Line2D([], [], marker="*", color=GOAL_COLOUR, markersize=11, linestyle="none",
-                   label="destination"),
-            Line2D([], [], color=GOAL_COLOUR, linestyle=":", label="success line")]
+    """Draws the target area (success: inside it at the end) and returns its legend handle."""
+    ax.add_patch(Circle(record.goal, record.goal_radius, facecolor=GOAL_COLOUR, alpha=0.2,
+                        edgecolor=GOAL_COLOUR, linewidth=1.5, zorder=1))
+    return [Patch(facecolor=GOAL_COLOUR, alpha=0.3, edgecolor=GOAL_COLOUR,
+                  label="target area")]
+
+
+def _draw_outcomes(ax: Any, record: EpisodeRecord, size: float) -> list[Any]:
+    """Marks each robot's end: a green ring if it succeeded, a red cross if not."""
+    end = record.positions[-1]
+    ok = record.succeeded
+    if ok.any():
+        ax.plot(end[ok, 0], end[ok, 1], marker="o", markersize=size, markerfacecolor="none",
+                markeredgecolor=GOAL_COLOUR, markeredgewidth=1.8, linestyle="none", zorder=7)
+    if (~ok).any():
+        ax.plot(end[~ok, 0], end[~ok, 1], marker="x", markersize=size, color=FAILURE_COLOUR,
+                markeredgewidth=2.0, linestyle="none", zorder=7)
+    return [
+        Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor=GOAL_COLOUR,
+               markeredgewidth=1.8, linestyle="none", label=f"succeeded ({int(ok.sum())})"),
+        Line2D([], [], marker="x", color=FAILURE_COLOUR, markeredgewidth=2.0,
+               linestyle="none", label=f"failed ({int((~ok).sum())})"),
+    ]
 
 
 def _new_figure(
@@ -440,7 +452,8 @@ def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
 
     Each robot's path is a grey line with a point per step in the colour of the
     robot's state at that step; a hollow square marks its start and a disc of
-    its real radius, in its final state's colour, its end.
+    its real radius, in its final state's colour, its end, ringed in green if the
+    robot ends in the target area (a success) and crossed in red if not.
     """
     fig, ax, handles = _new_figure(record, 9.0, 2.0, dpi)
     colours = np.array([mcolors.to_rgba(c) for c in record.state_colours])
@@ -460,7 +473,7 @@ def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
                linestyle="none", label="start"),
         Line2D([], [], marker="o", markerfacecolor="#dddddd", markeredgecolor="black",
                markersize=9, linestyle="none", label="end (robot size)"),
-    ] + handles
+    ] + _draw_outcomes(ax, record, 12) + handles
     _add_legend(fig, handles, 2.0, 8)
     ax.set_title(_title(record))
     fig.savefig(os.fspath(path_png), dpi=dpi)
@@ -504,6 +517,13 @@ def _indexed(frame: np.ndarray, palette: np.ndarray) -> Image.Image:
     image = Image.fromarray(index, mode="P")
     image.putpalette(palette.ravel().tolist())
     return image
+
+
+def _outcome_artists(ax: Any, record: EpisodeRecord) -> list[Any]:
+    """The end markers of :func:`_draw_outcomes`, as artists drawn on the last frame only."""
+    before = set(ax.lines)
+    _draw_outcomes(ax, record, 10)
+    return [line for line in ax.lines if line not in before]
 
 
 def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
@@ -553,10 +573,16 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
         canvas.restore_region(background)
         for artist in moving:
             ax.draw_artist(artist)
+        if step == record.num_steps:
+            for artist in _outcome_artists(ax, record):
+                ax.draw_artist(artist)
         rgb = np.asarray(canvas.buffer_rgba())[..., :3].copy()
         if palette is None:
-            palette = _palette(rgb, [*record.state_colours, TRAIL_COLOUR])
+            palette = _palette(rgb, [*record.state_colours, TRAIL_COLOUR, GOAL_COLOUR,
+                                     FAILURE_COLOUR])
         frames.append(_indexed(rgb, palette))
     duration = round(1000 / fps)
+    # Hold the last frame (with the outcomes marked) a second longer.
+    frames.append(frames[-1])
     frames[0].save(os.fspath(path_gif), save_all=True, append_images=frames[1:],
                    duration=duration, loop=0, optimize=False, disposal=1)

@@ -35,15 +35,23 @@ import jax
 import ccrjax
 from ccrjax.stats import mean_ci
 
-# The paper's four metrics (ccrjax.rollout.episode_metrics) and the training-time count.
-EVAL_METRICS = ("return", "success_rate", "danger_frequency", "hazard_distance")
-CSV_COLUMNS = ("seed", "env_steps", "wall_time_s", *EVAL_METRICS, "cumulative_danger_steps")
+# The paper's four metrics and the final distance to the target
+# (ccrjax.rollout.episode_metrics), and the training-time counts of dangerous robot-steps:
+# all of training, and from the start of learning (the warm-up's random steps are the
+# same for every variant).
+EVAL_METRICS = ("return", "success_rate", "target_distance", "danger_frequency",
+                "hazard_distance")
+TRAINING_COUNTS = ("cumulative_danger_steps", "learning_danger_steps")
+POINT_METRICS = (*EVAL_METRICS, *TRAINING_COUNTS)
+CSV_COLUMNS = ("seed", "env_steps", "wall_time_s", *POINT_METRICS)
 METRIC_TITLES = {
     "return": "return",
     "success_rate": "success rate",
+    "target_distance": "final distance to the target",
     "danger_frequency": "dangerous-behaviour frequency",
     "hazard_distance": "average distance to the hazard centre",
     "cumulative_danger_steps": "cumulative dangerous robot-steps in training",
+    "learning_danger_steps": "dangerous robot-steps since learning started",
 }
 
 
@@ -190,7 +198,7 @@ class RunFolder:
     # ------------------------------------------------------------ summary
     def write_summary(self, final_rows: Sequence[dict[str, Any]], extra: dict[str, Any]) -> dict:
         """``summary.json``: the final evaluation per seed, mean and 95% interval per metric."""
-        metrics = (*EVAL_METRICS, "cumulative_danger_steps")
+        metrics = POINT_METRICS
         summary = {
             "env_steps_per_seed": final_rows[0]["env_steps"],
             "seeds": [row["seed"] for row in final_rows],

@@ -34,7 +34,7 @@ from ccrjax import cli
 from ccrjax.cli import UsageError
 from ccrjax.grid import GridProgram, stack_keys
 from ccrjax.rollout import run_episode
-from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
+from ccrjax.run_folder import POINT_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
 from ccrjax.training import TrainConfig, make_env, make_train
 
@@ -229,8 +229,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     for lam in lams:
         mask = np.asarray(grid_lams) == lam
         rows.append({"lam": lam, "seeds": seeds,
-                     **{m: summarise(final[m][mask]) for m in (*EVAL_METRICS,
-                                                               "cumulative_danger_steps")}})
+                     **{m: summarise(final[m][mask]) for m in POINT_METRICS}})
     result = {
         "scenario": args.scenario, "algo": args.algo, "env_steps": config.total_env_steps,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,

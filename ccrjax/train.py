@@ -384,12 +384,12 @@ class StopRequest:
 
 def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
     """One ``metrics.csv`` row per seed from an evaluation point (leaves ``[seeds]``)."""
-    from ccrjax.run_folder import EVAL_METRICS
+    from ccrjax.run_folder import POINT_METRICS
 
     rows = []
     for index, seed in enumerate(seeds):
         row = {"seed": seed, "env_steps": int(point["env_steps"][index]), "wall_time_s": wall}
-        for name in (*EVAL_METRICS, "cumulative_danger_steps"):
+        for name in POINT_METRICS:
             row[name] = float(point[name][index])
         rows.append(row)
     return rows
@@ -553,10 +553,11 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
 
 
 def _eval_scalars(row: dict[str, Any]) -> dict[str, float]:
-    from ccrjax.run_folder import EVAL_METRICS
+    from ccrjax.run_folder import EVAL_METRICS, TRAINING_COUNTS
 
     scalars = {f"eval/{name}": row[name] for name in EVAL_METRICS}
-    scalars["train/cumulative_danger_steps"] = row["cumulative_danger_steps"]
+    for name in TRAINING_COUNTS:
+        scalars[f"train/{name}"] = row[name]
     return scalars
 
 

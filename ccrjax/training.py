@@ -60,7 +60,7 @@ class TrainConfig:
     """Everything that defines a training run of one seed.
 
     Sizes the paper leaves open are chosen here and documented in the README:
-    8 training environments per seed, episodes of 50 steps, and the environment-step
+    8 training environments per seed, episodes of 25 steps (the MPE's), and the environment-step
     budget ``total_env_steps`` per seed (every environment step of every training
     environment counts).
     """
@@ -71,7 +71,7 @@ class TrainConfig:
     penalty: float = 1.0  # pessimistic baseline: reward lowered on danger steps
     ccr: CCRConfig = CCRConfig()  # CCR's hyperparameters (variant "ccr")
     num_robots: int = 5
-    episode_length: int = 50
+    episode_length: int = 25
     num_envs: int = 8
     total_env_steps: int | None = None  # None: DEFAULT_BUDGET[algo]
     eval_every: int = 20_000  # environment steps between evaluations
@@ -241,6 +241,7 @@ class TrainState:
     env_steps: jax.Array  # int32[]
     updates: jax.Array  # int32[]
     danger_steps: jax.Array  # float32[]: dangerous robot-steps during training, cumulative
+    learning_danger_steps: jax.Array  # float32[]: the same, counted once learning has started
     nonfinite_iteration: jax.Array  # int32[]: first iteration whose update went non-finite, or -1
 
 
@@ -295,6 +296,7 @@ class TrainProgram:
             env_steps=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
             danger_steps=jnp.zeros((), jnp.float32),
+            learning_danger_steps=jnp.zeros((), jnp.float32),
             nonfinite_iteration=jnp.full((), -1, jnp.int32),
         )
 
@@ -341,7 +343,13 @@ class TrainProgram:
         nonfinite_iteration = jnp.where(
             (state.nonfinite_iteration < 0) & ~finite, state.iteration, state.nonfinite_iteration
         )
-        danger_steps = state.danger_steps + jnp.sum(episode.danger)
+        episode_danger = jnp.sum(episode.danger)
+        danger_steps = state.danger_steps + episode_danger
+        # Episodes collected once the buffer held enough to learn: the policy is learning.
+        learned_before = state.buffer.size >= config.learning_starts_transitions
+        learning_danger_steps = state.learning_danger_steps + jnp.where(
+            learned_before, episode_danger, 0.0
+        )
         new_state = state.replace(
             learner=learner_state,
             buffer=buffer,
@@ -351,12 +359,14 @@ class TrainProgram:
             env_steps=state.env_steps + config.steps_per_iteration,
             updates=state.updates + jnp.where(learning, config.updates_per_iteration, 0),
             danger_steps=danger_steps,
+            learning_danger_steps=learning_danger_steps,
             nonfinite_iteration=nonfinite_iteration,
         )
         metrics = {
             **{f"train_{k}": v for k, v in episode_metrics(episode).items()},
             **update_metrics,
             "cumulative_danger_steps": danger_steps,
+            "learning_danger_steps": learning_danger_steps,
         }
         return new_state, metrics
 
@@ -381,7 +391,8 @@ class TrainProgram:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, state: TrainState, key: jax.Array) -> dict[str, jax.Array]:
-        """The paper's four metrics on ``eval_episodes`` fresh episodes, deterministic policy."""
+        """The evaluation metrics (:func:`ccrjax.rollout.episode_metrics`) on ``eval_episodes``
+        fresh episodes, deterministic policy."""
 
         def greedy(obs, key):
             return self.learner.act(state.learner, obs, key, False)
@@ -407,6 +418,7 @@ class TrainProgram:
             **self.evaluate(state, jax.random.fold_in(state.eval_key, index)),
             "env_steps": state.env_steps,
             "cumulative_danger_steps": state.danger_steps,
+            "learning_danger_steps": state.learning_danger_steps,
         }
 
     def chunk(

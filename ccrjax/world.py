@@ -290,8 +290,9 @@ def rectangle_stop(
         t_a = (-half - start) / safe
         t_b = (half - start) / safe
         in_slab = jnp.abs(start) < half
-        lows.append(jnp.where(moving, jnp.minimum(t_a, t_b), jnp.where(in_slab, -jnp.inf, jnp.inf)))
-        highs.append(jnp.where(moving, jnp.maximum(t_a, t_b), jnp.where(in_slab, jnp.inf, -jnp.inf)))
+        outside = jnp.where(in_slab, -jnp.inf, jnp.inf)  # never entered, or always in
+        lows.append(jnp.where(moving, jnp.minimum(t_a, t_b), outside))
+        highs.append(jnp.where(moving, jnp.maximum(t_a, t_b), -outside))
         sides.append(jnp.where(moving, -jnp.sign(step), jnp.where(start >= 0.0, 1.0, -1.0)))
     t_enter = jnp.maximum(lows[0], lows[1])
     t_leave = jnp.minimum(highs[0], highs[1])

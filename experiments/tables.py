@@ -56,7 +56,7 @@ from ccrjax.analysis import arrival_analysis
 from ccrjax.learners.ddpg import DDPGConfig
 from ccrjax.learners.maac import MAACConfig
 from ccrjax.paper import PAPER, PAPER_HEADLINES, SCENARIOS
-from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
+from ccrjax.run_folder import POINT_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
 from ccrjax.sweep import GridRuns, GridTraining
 from ccrjax.training import TrainConfig
@@ -67,7 +67,7 @@ LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 VARIANT_SUFFIX = {"plain": "", "pessimistic": " (Pessimistic)", "ccr": "+CCR"}
 SCENARIO_NAMES = {"hidden_obstacle": "hidden obstacle", "turbulence": "turbulence",
                   "strong_wind": "strong wind"}
-METRICS = (*EVAL_METRICS, "cumulative_danger_steps")
+METRICS = POINT_METRICS
 
 # The paper's Tables I and II (percent), by (scenario, learner, variant).
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -1,0 +1,217 @@
+"""Is CCR's signal about emergencies? ``python experiments/ccr_signal.py``.
+
+    python experiments/ccr_signal.py                        # 512 episodes per scenario
+    python experiments/ccr_signal.py --episodes 32 --out /tmp/s   # small, for the tests
+
+CCR's emergency score is the error of a learned model of nominal motion; anything the
+model cannot predict raises it, robot-robot contacts as much as hazards. For CCR's
+intrinsic reward to be about emergencies, most of it must arise near hazards. Under a
+reference controller (the hazard-blind go-to-goal of ``reference_controllers.py``, which
+heads for the target as a plain learner does), or under a plain learner trained first in
+the same scenario (``--trained maddpg``), per scenario, this measures:
+
+* the smoothed emergency score ``E`` of robots in danger, in robot-robot contact
+  (centres closer than two radii plus ``CONTACT_SLACK``) but not in danger, and in free
+  motion (neither): quartiles and means;
+* the **share of the intrinsic reward's magnitude** ``sum |R_in|`` that arises within
+  ``m`` steps of a robot of the same environment being in danger (any robot of that
+  environment in danger at one of the steps ``t - m, ..., t + 1`` of the transition
+  ``t -> t + 1``; ``m`` is CCR's rolling-mean window).
+
+CCR's model is first fitted as in training, where the learners' first ``learning_starts``
+transitions come from uniformly random actions: on ``--warmup`` episodes of random
+actions in the same scenario (its statistics are taken in at each episode's end); then
+one batch of ``--episodes`` episodes of the controller is measured with lambda = 1 (the
+share does not depend on lambda).
+Writes ``<out>/ccr_signal.json`` and ``ccr_signal.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from ccrjax.ccr.transform import CCR
+from ccrjax.env import CCREnv
+from ccrjax.rollout import run_episode
+from ccrjax.run_folder import git_commit, write_atomic
+from ccrjax.training import TrainConfig, make_train
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reference_controllers import CONTROLLERS  # noqa: E402
+
+SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
+CONTACT_SLACK = 0.01
+TARGET_SHARE = 0.70
+
+
+def trained_policy(scenario: str, algo: str, steps: int, seed: int):
+    """A plain ``algo`` learner trained ``steps`` environment steps in ``scenario``: its
+    deterministic policy on the plain observation features, and its final evaluation."""
+    config = TrainConfig(algo=algo, scenario=scenario, variant="plain", total_env_steps=steps,
+                         eval_every=steps)
+    program = make_train(config)
+    state, history = jax.jit(program.train)(jax.random.PRNGKey(seed + 1000))
+    features = program.env.observation_size
+
+    def act(obs, key):
+        return program.learner.act(state.learner, obs[..., :features], key, False)
+
+    final = {name: float(values[-1]) for name, values in history.items()}
+    return act, final
+
+
+def measure(scenario: str, controller: str, episodes: int, warmup: int,
+            seed: int, trained: str | None = None, train_steps: int = 0) -> dict[str, Any]:
+    """The score distributions and the intrinsic reward's share near danger, one scenario."""
+    env = CCREnv(scenario, num_envs=episodes)
+    transform = CCR()
+    window = transform.config.window
+    learner_act, evaluation = None, None
+    if trained is None:
+        act = CONTROLLERS[controller](env)
+    else:
+        learner_act, evaluation = trained_policy(scenario, trained, train_steps, seed)
+        act = None
+
+    def explore(world, key):
+        return jax.random.uniform(key, world.position.shape, minval=-1.0, maxval=1.0)
+
+    @jax.jit
+    def warm(state, key):
+        return run_episode(env, transform, state, None, False, key, controller=explore)[0]
+
+    @jax.jit
+    def episode(state, key):
+        return run_episode(env, transform, state, learner_act, False, key, controller=act)[1]
+
+    state = transform.init(env, {"lam": 1.0})
+    keys = jax.random.split(jax.random.PRNGKey(seed), warmup + 1)
+    for key in keys[:-1]:
+        state = warm(state, key)
+    record = episode(state, keys[-1])
+    score = np.asarray(record.info["emergency_score"])  # [T, N, E]: E_{t+1}
+    reward = np.abs(np.asarray(record.info["intrinsic_reward"]))  # [T, N, E]
+    danger = np.asarray(record.danger) > 0  # [T, N, E]: at t + 1
+    position = np.asarray(record.position)[1:]  # [T, N, 2, E]: at t + 1
+    offset = position[:, :, None] - position[:, None, :]  # [T, N, N, 2, E]
+    distance = np.hypot(offset[:, :, :, 0], offset[:, :, :, 1])
+    steps, robots = distance.shape[:2]
+    distance[:, np.arange(robots), np.arange(robots)] = np.inf
+    contact = distance.min(axis=2) < 2 * env.robot_radius + CONTACT_SLACK  # [T, N, E]
+    classes = {"danger": danger, "contact": contact & ~danger, "free": ~contact & ~danger}
+
+    def describe(values: np.ndarray) -> dict[str, float | int]:
+        if values.size == 0:
+            return {"n": 0}
+        q25, q50, q75 = np.quantile(values, [0.25, 0.5, 0.75])
+        return {"n": int(values.size), "mean": float(values.mean()), "q25": float(q25),
+                "median": float(q50), "q75": float(q75)}
+
+    # Any robot of the environment in danger at t + 1 - k for k = 0..m + 1 (steps t - m..t + 1).
+    env_danger = danger.any(axis=1)  # [T, E], index s: state s + 1
+    recent = np.zeros_like(env_danger)
+    for lag in range(window + 2):
+        recent[lag:] |= env_danger[: steps - lag]
+    near = np.broadcast_to(recent[:, None, :], reward.shape)
+    total = float(reward.sum())
+    return {
+        "scenario": scenario,
+        "policy": controller if trained is None else f"plain {trained}, {train_steps} steps",
+        "trained_evaluation": evaluation,
+        "score": {name: describe(score[mask]) for name, mask in classes.items()},
+        "share_of_steps": {name: float(mask.mean()) for name, mask in classes.items()},
+        "intrinsic_total": total,
+        "intrinsic_share_near_danger": float(reward[near].sum() / total) if total > 0 else None,
+        "intrinsic_share_in_contact": (float(reward[classes["contact"]].sum() / total)
+                                       if total > 0 else None),
+    }
+
+
+def _g(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3g}"
+
+
+def markdown(result: dict[str, Any]) -> str:
+    lines = [
+        f"Policy `{result['policy']}`, {result['episodes']} episodes per scenario after "
+        f"{result['warmup']} episodes of random actions fitting CCR's model; smoothed "
+        "emergency score E by the robot's state (median [quartiles], share of robot-steps), "
+        "and the share of the intrinsic reward's magnitude within m steps of a robot of the "
+        "same environment being in danger.",
+        "",
+        "| scenario | E in danger | E in contact | E in free motion | "
+        "share of |R_in| near danger | share of |R_in| in contact |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in result["rows"]:
+        cells = []
+        for name in ("danger", "contact", "free"):
+            s = row["score"][name]
+            share = row["share_of_steps"][name]
+            cells.append("none" if s["n"] == 0 else
+                         f"{s['median']:.2g} [{s['q25']:.2g}, {s['q75']:.2g}] ({share:.1%})")
+        near, contact = row["intrinsic_share_near_danger"], row["intrinsic_share_in_contact"]
+        lines.append(f"| {row['scenario']} | {' | '.join(cells)} | "
+                     f"{'n/a' if near is None else f'{near:.1%}'} | "
+                     f"{'n/a' if contact is None else f'{contact:.1%}'} |")
+    lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` in "
+              f"{result['seconds']:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/ccr_signal.py",
+        description="Where CCR's emergency score and intrinsic reward arise, under a "
+                    "reference controller.",
+    )
+    parser.add_argument("--controller", default="go_to_goal", choices=sorted(CONTROLLERS),
+                        help="reference controller (default go_to_goal)")
+    parser.add_argument("--episodes", type=int, default=512,
+                        help="episodes measured per scenario (default 512)")
+    parser.add_argument("--warmup", type=int, default=20,
+                        help="episodes that fit CCR's model first (default 20)")
+    parser.add_argument("--trained", choices=("iddpg", "maddpg"), default=None,
+                        help="measure under this plain learner, trained first in each "
+                             "scenario, instead of --controller")
+    parser.add_argument("--train-steps", type=int, default=150_000,
+                        help="environment steps of that training (default 150,000)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--out", type=Path, default=Path("runs/ccr_signal"),
+                        help="output folder (default runs/ccr_signal)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for name in ("episodes", "warmup"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be an integer >= 1, got {getattr(args, name)}")
+    start = time.time()
+    rows = [measure(s, args.controller, args.episodes, args.warmup, args.seed, args.trained,
+                    args.train_steps) for s in SCENARIOS]
+    result = {
+        "policy": rows[0]["policy"], "episodes": args.episodes, "warmup": args.warmup,
+        "seed": args.seed, "rows": rows, "commit": git_commit(),
+        "command": " ".join(["python experiments/ccr_signal.py", *(argv or sys.argv[1:])]),
+        "seconds": time.time() - start,
+    }
+    text = markdown(result)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_atomic(args.out / "ccr_signal.json", json.dumps(result, indent=1))
+    write_atomic(args.out / "ccr_signal.md", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
