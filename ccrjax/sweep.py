@@ -8,7 +8,7 @@ state; the replay buffers stay inside the program). The experiments build on it:
 ``experiments/tables.py``, ``experiments/behaviour.py``, and this module's command::
 
     python -m ccrjax.sweep --scenario hidden_obstacle --algo maddpg \\
-        --lams 0 1 3 10 30 100 --seeds 5 --out experiments/results/sweep
+        --lams 0 1 3 10 30 100 --seeds 5 --out runs/sweep
 
 which trains ``len(lams) x seeds`` CCR runs at once and writes ``sweep.md`` (a table
 of the four metrics per lambda, mean and 95% interval over seeds), ``sweep.json``
@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="environment steps per run (default: the learner's default budget)")
     parser.add_argument("--eval-episodes", type=cli.int_in(1, 65536), default=128,
                         help="episodes per evaluation (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=Path("experiments/results/sweep"),
+    parser.add_argument("--out", type=Path, default=Path("runs/sweep"),
                         help="output folder (default: %(default)s)")
     return parser
 
