@@ -1,5 +1,5 @@
 """Tests of :class:`ccrjax.env.CCREnv`: registry, batching, determinism, auto-reset,
-observation layout, jit, and input validation.
+start positions and targets, success, observation layout, jit, and input validation.
 
 Arrays are batch-last: obs ``[N, F, B]``, reward ``[N, B]``, continuous action ``[N, 2, B]``.
 
@@ -16,11 +16,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from brax.envs.base import State
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ccrjax.env import CCREnv, WorldState
-from ccrjax.scenarios import Hazard
+from ccrjax.rollout import Episode, episode_metrics
+from ccrjax.scenarios import Hazard, Layout
+from ccrjax.scenarios.base import target_positions
+from ccrjax.world import rectangle_distance
 
 NAMES = ["turbulence", "strong_wind", "hidden_obstacle", "nominal"]
+METRICS = ("danger", "success", "target_distance", "hazard_distance")
 N, B, EPISODE = 3, 4, 4  # robots, environments, steps per episode: few shapes, few compiles
 STEPS = 3 * EPISODE  # every rollout has this length: one compilation per environment
 
@@ -92,21 +98,22 @@ def compiled():
 
 def hand_batch_world(env: CCREnv, key=None) -> WorldState:
     """A world of ``B`` environments built with numpy (no random draws): hazards of each
-    scenario's shape, robot 0 inside the hazard, robot 1 overlapping robot 0 (a contact),
-    robot 2 well outside, random velocities."""
+    scenario's shape, robot 0 inside the hazard area (on the obstacle's -x face, touching
+    it), robot 1 overlapping robot 0 (a contact), robot 2 well outside, random velocities."""
     rng = np.random.default_rng(0)
     centre = rng.uniform(-0.3, 0.3, (2, B))
     if env.scenario.name == "hidden_obstacle":
         half = np.stack([np.full(B, 0.2), rng.uniform(0.3, 0.7, B)])
+        offset = np.array([[-0.25], [0.02]])  # on the grown -x face
     elif env.scenario.name == "nominal":
         half = np.zeros((2, B))
+        offset = np.array([[0.05], [0.02]])
     else:
         half = np.tile(rng.uniform(0.3, 0.5, B), (2, 1))
-    angle = rng.uniform(0, 2 * np.pi, B)
-    direction = np.stack([np.cos(angle), np.sin(angle)])
-    offset = np.array([[0.05], [0.02]])
+        offset = np.array([[0.05], [0.02]])
+    direction = np.stack([np.zeros(B), np.where(rng.random(B) < 0.5, -1.0, 1.0)])
     position = np.stack(
-        [centre + offset, centre + offset + [[0.07], [0.0]], centre - [[0.75], [0.0]]]
+        [centre + offset, centre + offset - [[0.07], [0.0]], centre - [[0.75], [0.0]]]
     )
     hazard = Hazard(
         centre=jnp.asarray(centre, jnp.float32),
@@ -118,8 +125,7 @@ def hand_batch_world(env: CCREnv, key=None) -> WorldState:
         position=position,
         velocity=jnp.asarray(rng.normal(size=(N, 2, B)), jnp.float32),
         hazard=hazard,
-        hazard_memory=env.scenario.init_memory(hazard, position),
-        succeeded=jnp.zeros((N, B), bool),
+        target=target_positions(position, env.layout),
         time=jnp.zeros((), jnp.int32),
         key=jax.random.key(0) if key is None else key,
     )
@@ -133,7 +139,7 @@ def hand_state(env: CCREnv, key) -> State:
         obs=jnp.zeros((N, env.observation_size, B), jnp.float32),
         reward=zeros,
         done=jnp.zeros((B,), jnp.float32),
-        metrics={"danger": zeros, "success": zeros, "hazard_distance": zeros},
+        metrics={name: zeros for name in METRICS},
         info={},
     )
 
@@ -220,7 +226,7 @@ def test_batch_equals_environments_stepped_one_by_one(name):
             assert_trees_equal(slice_env(world, b), world_b, atol=1e-6)
             np.testing.assert_allclose(obs[..., b : b + 1], obs_b, rtol=0, atol=1e-6)
             np.testing.assert_allclose(reward[..., b : b + 1], reward_b, rtol=0, atol=1e-6)
-            for metric in ("danger", "success", "hazard_distance"):
+            for metric in METRICS:
                 np.testing.assert_allclose(
                     metrics[metric][..., b : b + 1], metrics_b[metric], rtol=0, atol=1e-6
                 )
@@ -307,11 +313,10 @@ def test_auto_reset_draws_a_new_episode(compiled):
         assert int(world.time) == 0
         assert in_start_box(env, world.position)
         assert np.all(np.asarray(world.velocity) == 0.0)
-        assert not np.any(world.succeeded)
         assert not np.allclose(world.position, terminal.pipeline_state.position)
-        # the hazard's memory starts afresh too (the obstacle's: the new start positions)
+        # the targets are handed out afresh, for the new start positions
         np.testing.assert_array_equal(
-            world.hazard_memory, env.scenario.init_memory(world.hazard, world.position)
+            world.target, target_positions(world.position, env.layout)
         )
         hazards.append(world.hazard)
         starts.append(world.position)
@@ -336,7 +341,183 @@ def test_transition_never_resets(compiled):
     np.testing.assert_array_equal(later.done[0], np.ones(B))
 
 
+# --------------------------------------------------------------------------- starts, targets
+
+
+@pytest.mark.parametrize(
+    ("num_robots", "layout"),
+    [
+        (5, Layout()),
+        # 16 of the default start box's 3 x 6 cells; slots 0.1 apart in a larger area.
+        (16, Layout(target_spacing=0.1, goal_radius=0.8)),
+    ],
+    ids=["5_robots", "16_robots"],
+)
+def test_starts_are_separated_and_targets_are_slots_by_height(num_robots, layout):
+    batch = 4096
+    env = CCREnv("nominal", num_robots=num_robots, num_envs=batch, layout=layout)
+    world = jax.jit(env.reset)(jax.random.key(11)).pipeline_state
+    position, target = np.asarray(world.position), np.asarray(world.target)
+    # Every pair at least min_separation apart, every robot inside the start box.
+    gap = np.linalg.norm(position[:, None] - position[None], axis=2)  # [N, N, B]
+    gap[np.arange(num_robots), np.arange(num_robots)] = np.inf
+    assert gap.min() >= layout.min_separation - 1e-6, gap.min()
+    centre = np.array(layout.start_centre)[None, :, None]
+    half = np.array(layout.start_half_extent)[None, :, None]
+    assert np.all(np.abs(position - centre) <= half + 1e-6)
+    # Starts are spread over the whole box (every cell is drawn), and differ between envs.
+    for axis in range(2):
+        spread = position[:, axis].max() - position[:, axis].min()
+        assert spread > 2 * layout.start_half_extent[axis] - layout.min_separation - 0.02
+    assert not np.allclose(position[..., 0], position[..., 1])
+    # Targets: on the target area's vertical diameter, target_spacing apart, centred on
+    # the goal, each robot's disc inside the area, distinct ...
+    np.testing.assert_allclose(target[:, 0], layout.goal[0], atol=1e-6)
+    slots = np.sort(target[:, 1], axis=0)  # [N, B]
+    np.testing.assert_allclose(np.diff(slots, axis=0), layout.target_spacing, atol=1e-5)
+    np.testing.assert_allclose(slots.mean(axis=0), layout.goal[1], atol=1e-5)
+    reach = np.hypot(target[:, 0] - layout.goal[0], target[:, 1] - layout.goal[1])
+    assert np.all(reach + env.robot_radius <= layout.goal_radius + 1e-6)
+    # ... and handed out in the order of the robots' starting heights.
+    np.testing.assert_array_equal(
+        np.argsort(position[:, 1], axis=0, kind="stable"),
+        np.argsort(target[:, 1], axis=0, kind="stable"),
+    )
+
+
+def test_success_is_where_the_robot_is_now(compiled):
+    # Success is read at each step, not remembered. In every environment, robot 0 starts
+    # left of the goal (1.5, 0) at full speed along +x and keeps pushing: it is in the
+    # target area (radius 0.4) for two steps (x = 1.55, 1.75), then out (1.95, 2.15);
+    # robot 1 rests inside; robot 2 drives in from outside. (The hazard is far away.)
+    c = compiled(ROLLOUT)
+    state = hand_state(c.env, rollout_key(5))
+    world = state.pipeline_state
+    start = np.array([[1.35, 0.0], [1.5, 0.1], [0.75, 0.0]], np.float32)
+    speed = np.array([[2.0, 0.0], [0.0, 0.0], [2.0, 0.0]], np.float32)
+    world = world.replace(
+        position=jnp.asarray(np.repeat(start[..., None], B, axis=2)),
+        velocity=jnp.asarray(np.repeat(speed[..., None], B, axis=2)),
+        hazard=world.hazard.replace(centre=world.hazard.centre - 3.0),
+    )
+    actions = np.zeros((STEPS, N, 2, B), np.float32)
+    actions[:, 0, 0] = 1.0
+    actions[:, 2, 0] = 1.0
+    _, terminals, _ = c.run(state.replace(pipeline_state=world), jnp.asarray(actions))
+    position = np.asarray(terminals.pipeline_state.position[:EPISODE])  # [T, N, 2, B]
+    success = np.asarray(terminals.metrics["success"][:EPISODE])  # [T, N, B]
+    inside = np.hypot(position[:, :, 0] - 1.5, position[:, :, 1]) < 0.4
+    np.testing.assert_array_equal(success, inside)
+    np.testing.assert_array_equal(success[:, 0], np.tile([[1], [1], [0], [0]], (1, B)))
+    assert np.all(success[:, 1] == 1.0)
+    assert np.all(success[0, 2] == 0.0) and np.all(success[-1, 2] == 1.0)
+
+
+def test_episode_metrics_hand_built():
+    # T = 3 steps, N = 2 robots, E = 2 episodes. Success and the target distance are read
+    # at the last step only; danger and the hazard distance are means over robot-steps;
+    # the return is the sum of the rewards over steps, averaged over robots and episodes.
+    success = np.array([
+        [[1, 1], [0, 1]],  # robot 0 succeeds at step 0 in both episodes ...
+        [[1, 0], [0, 1]],
+        [[0, 0], [1, 1]],  # ... but ends outside: only robot 1's ends count, 2 of 4
+    ], np.float32)
+    danger = np.array([[[1, 0], [0, 0]], [[1, 1], [0, 0]], [[0, 0], [0, 1]]], np.float32)
+    target_distance = np.array([
+        [[3.0, 3.0], [3.0, 3.0]], [[0.0, 0.0], [0.0, 0.0]], [[0.5, 1.5], [0.0, 2.0]],
+    ], np.float32)
+    hazard_distance = np.arange(12, dtype=np.float32).reshape(3, 2, 2)
+    env_reward = -target_distance
+    episode = Episode(
+        transitions=None, env_reward=jnp.asarray(env_reward), danger=jnp.asarray(danger),
+        success=jnp.asarray(success), target_distance=jnp.asarray(target_distance),
+        hazard_distance=jnp.asarray(hazard_distance), position=jnp.zeros((4, 2, 2, 2)),
+        hazard=None, info={},
+    )
+    metrics = {name: float(value) for name, value in episode_metrics(episode).items()}
+    assert metrics == pytest.approx({
+        "success_rate": 0.5,
+        "target_distance": 1.0,  # (0.5 + 1.5 + 0 + 2) / 4
+        "danger_frequency": 4 / 12,
+        "hazard_distance": 5.5,  # mean of 0..11
+        "return": -4.0,  # sums per robot and episode: -3.5, -4.5, -3, -5
+    })
+
+
+# --------------------------------------------------------------------------- solid obstacle
+
+
+PILE_ROBOTS, PILE_ENVS, PILE_STEPS = 12, 16, 40
+
+
+@pytest.fixture(scope="module")
+def pile_env():
+    """12 robots (a target area that holds them) in 16 environments of the hidden obstacle,
+    and a rollout of ``env.transition`` with full action towards an aim point ``[2, B]``."""
+    layout = Layout(target_spacing=0.1, goal_radius=0.8)
+    env = CCREnv("hidden_obstacle", num_robots=PILE_ROBOTS, num_envs=PILE_ENVS, layout=layout)
+
+    def run(state, aim):
+        def body(state, _):
+            heading = aim[None] - state.pipeline_state.position
+            norm = jnp.sqrt(jnp.sum(heading * heading, axis=1, keepdims=True))
+            action = jnp.clip(2.0 * heading / jnp.maximum(norm, 1e-6), -1.0, 1.0)
+            state = env.transition(state, action)
+            return state, (state.pipeline_state.position, state.metrics["danger"])
+
+        return jax.lax.scan(body, state, None, length=PILE_STEPS)[1]
+
+    return env, jax.jit(env.reset)(jax.random.key(0)), jax.jit(run)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+          HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_obstacle_is_solid_through_the_environment(pile_env, seed):
+    # Piles of 12 robots, thrown at the obstacle at up to 10 units/s from in front of it and
+    # off its corners, all driving at full action towards its centre (even environments)
+    # or a point behind it (odd ones) for 40 steps, through env.transition: after every
+    # step no robot's disc overlaps the obstacle, and every robot touching it is in danger.
+    env, start, run = pile_env
+    rng = np.random.default_rng(seed)
+    centre = np.stack([rng.uniform(-0.1, 0.1, PILE_ENVS), rng.uniform(-0.25, 0.25, PILE_ENVS)])
+    half = np.stack([np.full(PILE_ENVS, 0.2), rng.uniform(0.6, 1.0, PILE_ENVS)])
+    position = np.zeros((PILE_ROBOTS, 2, PILE_ENVS))
+    for b in range(PILE_ENVS):
+        placed = []
+        while len(placed) < PILE_ROBOTS:
+            p = centre[:, b] + [rng.uniform(-1.2, 0.0) - half[0, b] - 0.05,
+                                rng.uniform(-1.3, 1.3) * (half[1, b] + 0.05)]
+            if all(np.linalg.norm(p - q) > 0.1 for q in placed):
+                placed.append(p)
+        position[:, :, b] = placed
+    heading = centre[None] - position
+    velocity = heading / np.linalg.norm(heading, axis=1, keepdims=True)
+    velocity *= rng.uniform(0.0, 10.0, (PILE_ROBOTS, 1, PILE_ENVS))
+    aim = centre + np.stack([np.where(np.arange(PILE_ENVS) % 2 == 0, 0.0, 1.0),
+                             np.zeros(PILE_ENVS)])
+    hazard = Hazard(centre=jnp.asarray(centre, jnp.float32),
+                    half_extent=jnp.asarray(half, jnp.float32),
+                    direction=jnp.zeros((2, PILE_ENVS), jnp.float32))
+    world = start.pipeline_state.replace(
+        position=jnp.asarray(position, jnp.float32), velocity=jnp.asarray(velocity, jnp.float32),
+        hazard=hazard,
+    )
+    positions, danger = run(start.replace(pipeline_state=world), jnp.asarray(aim, jnp.float32))
+    distance = np.asarray(jax.vmap(
+        lambda p: rectangle_distance(p, hazard.centre, hazard.half_extent))(positions))
+    assert distance.min() >= env.robot_radius - 1e-5, distance.min() - env.robot_radius
+    touching = distance <= env.robot_radius + env.scenario.touch_tolerance
+    np.testing.assert_array_equal(np.asarray(danger), touching)
+    assert touching[-1][:, ::2].sum() >= PILE_ENVS  # the piles press against the face
+
+
 # --------------------------------------------------------------------------- observations
+
+
+# Robots 0 and 2 start at the same height, robot 1 above them: slots (target_spacing 0.15
+# apart, centred on the goal (1.5, 0)) by height, ties by index: robot 0 the lowest.
+HAND_TARGETS = np.array([[1.5, -0.15], [1.5, 0.15], [1.5, 0.0]], np.float32)
 
 
 def hand_world(env: CCREnv, hazard: Hazard) -> WorldState:
@@ -346,10 +527,22 @@ def hand_world(env: CCREnv, hazard: Hazard) -> WorldState:
         position=jnp.asarray(position),
         velocity=jnp.asarray(velocity),
         hazard=hazard,
-        hazard_memory=env.scenario.init_memory(hazard, jnp.asarray(position)),
-        succeeded=jnp.zeros((3, 1), bool),
+        target=jnp.asarray(HAND_TARGETS[:, :, None]),
         time=jnp.zeros((), jnp.int32),
         key=jax.random.key(0),
+    )
+
+
+def test_targets_by_starting_height_hand_computed():
+    position = jnp.asarray(np.array([[0.0, 0.0], [0.3, 0.4], [-1.0, 0.0]], np.float32)[:, :, None])
+    np.testing.assert_allclose(
+        target_positions(position, Layout())[:, :, 0], HAND_TARGETS, atol=1e-7
+    )
+    # Another layout: slots 0.3 apart around (1.0, 1.0).
+    layout = Layout(goal=(1.0, 1.0), target_spacing=0.3, goal_radius=0.5)
+    np.testing.assert_allclose(
+        target_positions(position, layout)[:, :, 0], [[1.0, 0.7], [1.0, 1.3], [1.0, 1.0]],
+        atol=1e-6,
     )
 
 
@@ -359,7 +552,7 @@ def column(*values):
 
 def test_observation_layout_hand_placed():
     env = CCREnv("turbulence", num_robots=3, num_envs=1)
-    # Turbulence circle centred at (0.1, 0) with radius 0.5; the goal is (1.5, 0).
+    # Turbulence circle centred at (0.1, 0) with radius 0.5; the targets are HAND_TARGETS.
     hazard = Hazard(centre=column(0.1, 0.0), half_extent=column(0.5, 0.5),
                     direction=column(0.0, 0.0))
     world = hand_world(env, hazard)
@@ -368,23 +561,27 @@ def test_observation_layout_hand_placed():
     )
     assert obs.shape == (3, env.observation_size, 1) == (3, 17, 1)
     d12 = math.sqrt(1.3**2 + 0.4**2)  # |p2 - p1| = |(-1.3, -0.4)| = 1.36015
-    g1 = math.sqrt(1.2**2 + 0.4**2)  # |goal - p1| = |(1.2, -0.4)| = 1.26491
+    g0 = math.sqrt(1.5**2 + 0.15**2)  # |target0 - p0| = |(1.5, -0.15)| = 1.50748
+    g1 = math.sqrt(1.2**2 + 0.25**2)  # |target1 - p1| = |(1.2, -0.25)| = 1.22577
     expected = np.array(
         [
             # own p,   own v,      robot 1: d, dir        robot 2: d, dir
             [0, 0, 0.1, -0.2, 0.5, 0.6, 0.8, 1.0, -1.0, 0.0,
-             # goal: d, dir   hazard: inside, centre - p, radius  (|c - p0| = 0.1 < 0.5)
-             1.5, 1.0, 0.0, 1.0, 0.1, 0.0, 0.5],
+             # target: d, dir      hazard: inside, centre - p, radius  (|c - p0| = 0.1 < 0.5)
+             g0, 1.5 / g0, -0.15 / g0, 1.0, 0.1, 0.0, 0.5],
             # robot 1 sees robot 0, then robot 2
             [0.3, 0.4, 0.0, 0.5, 0.5, -0.6, -0.8, d12, -1.3 / d12, -0.4 / d12,
-             g1, 1.2 / g1, -0.4 / g1, 1.0, -0.2, -0.4, 0.5],  # |c - p1| = 0.447 < 0.5
+             g1, 1.2 / g1, -0.25 / g1, 1.0, -0.2, -0.4, 0.5],  # |c - p1| = 0.447 < 0.5
             # robot 2 sees robot 0, then robot 1
             [-1.0, 0.0, -1.0, 0.0, 1.0, 1.0, 0.0, d12, 1.3 / d12, 0.4 / d12,
              2.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],  # outside: hazard features all zero
         ]
     )
     np.testing.assert_allclose(obs[:, :, 0], expected, atol=1e-6)
-    np.testing.assert_allclose(reward[:, 0], [-1.5, -g1, -2.5], atol=1e-6)
+    # reward and target_distance: the distance to the robot's own target
+    np.testing.assert_allclose(reward[:, 0], [-g0, -g1, -2.5], atol=1e-6)
+    np.testing.assert_allclose(metrics["target_distance"][:, 0], [g0, g1, 2.5], atol=1e-6)
+    np.testing.assert_array_equal(metrics["success"][:, 0], [0, 0, 0])
     np.testing.assert_array_equal(metrics["danger"][:, 0], [1, 1, 0])
     np.testing.assert_allclose(
         metrics["hazard_distance"][:, 0], [0.1, math.sqrt(0.2), 1.1], atol=1e-6
@@ -491,6 +688,47 @@ def test_random_actions_helper():
     ],
 )
 def test_bad_arguments_raise_value_error(kwargs, pattern):
+    kwargs = {"scenario": "turbulence", **kwargs}
+    with pytest.raises(ValueError, match=pattern):
+        CCREnv(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "pattern"),
+    [
+        # A start box of one cell at min_separation 0.15 cannot hold 5 robots.
+        ({"layout": Layout(start_half_extent=(0.1, 0.1))},
+         r"Layout.start_half_extent .* holds 1 robots at min_separation 0.15, fewer than "
+         r"num_robots 5"),
+        # Nor can the default box (3 x 6 cells) hold 20 robots.
+        ({"num_robots": 20, "layout": Layout(target_spacing=0.1, goal_radius=1.0)},
+         r"Layout.start_half_extent .* holds 18 robots"),
+        ({"layout": Layout(min_separation=0.08)}, r"Layout.min_separation must be at least"),
+        # Five targets 0.15 apart need 0.35 of the target area's radius.
+        ({"layout": Layout(goal_radius=0.3)}, r"Layout.goal_radius 0.3 is too small for 5"),
+        ({"num_robots": 6}, r"Layout.goal_radius 0.4 is too small for 6"),
+        ({"layout": Layout(target_spacing=0.05)}, r"Layout.target_spacing must be at least"),
+        # A target area smaller than a robot.
+        ({"num_robots": 2, "layout": Layout(goal_radius=0.04)},
+         r"Layout.goal_radius must be larger than a robot's radius"),
+        # A wind area wider than the arena.
+        ({"scenario": "strong_wind", "scenario_params": {"side_range": (1.2, 6.0)}},
+         r"StrongWind: hazards reach .* beyond the arena .*Layout.arena_half_extent"),
+        # An obstacle that blocks every way past it.
+        ({"scenario": "hidden_obstacle", "scenario_params": {"length_range": (1.0, 3.9)},
+          "layout": Layout(hazard_y_range=(0.0, 0.0))},
+         r"HiddenObstacle.length_range .* can block every way"),
+        # A hazard that overlaps the start box.
+        ({"layout": Layout(start_centre=(-0.9, 0.0))},
+         r"Turbulence: hazards .* overlapping the start box .*start_centre, start_half_extent"),
+        ({"scenario_params": {"radius_range": (0.9, 1.5)}},
+         r"Turbulence: hazards .* overlapping the start box"),
+        # ... or the target area.
+        ({"scenario": "hidden_obstacle", "layout": Layout(goal=(0.6, 0.0))},
+         r"HiddenObstacle: hazards .* overlapping the target area .*Layout.goal, goal_radius"),
+    ],
+)
+def test_layouts_that_cannot_hold_the_task_raise_value_error(kwargs, pattern):
     kwargs = {"scenario": "turbulence", **kwargs}
     with pytest.raises(ValueError, match=pattern):
         CCREnv(**kwargs)

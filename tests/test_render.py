@@ -1,4 +1,4 @@
-"""Pictures of an episode: recording, validation, PNG and GIF output."""
+"""Pictures of an episode: recording, validation, PNG and GIF output, outcomes."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from ccrjax.env import CCREnv
 from ccrjax.render import (
     CCR_STATE_COLOURS,
     CCR_STATE_NAMES,
+    FAILURE_COLOUR,
+    GOAL_COLOUR,
     EpisodeRecord,
     animate_episode,
     draw_episode,
@@ -55,6 +57,8 @@ def test_record_matches_the_rollout(env: CCREnv, record: EpisodeRecord) -> None:
     # Robots moved, and every recorded position is finite.
     assert np.all(np.isfinite(record.positions))
     assert not np.allclose(record.positions[0], record.positions[-1])
+    # Five random steps from the start box: nobody is in the target area.
+    assert record.succeeded.shape == (3,) and not record.succeeded.any()
 
 
 def test_draw_and_animate(record: EpisodeRecord, tmp_path) -> None:
@@ -112,3 +116,50 @@ def test_record_validation(record: EpisodeRecord) -> None:
 def test_record_episode_rejects_bad_env_index(env: CCREnv) -> None:
     with pytest.raises(ValueError, match="env_index"):
         record_episode(env, random_policy, jax.random.key(0), env_index=2)
+
+
+def colour_count(pixels: np.ndarray, colour: str) -> int:
+    rgb = np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)])
+    return int(np.sum(np.all(pixels == rgb, axis=1)))
+
+
+def png_pixels(path) -> np.ndarray:
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB")).reshape(-1, 3)
+
+
+def test_outcomes_are_read_at_the_end_and_marked(record: EpisodeRecord, tmp_path) -> None:
+    # Success is the robot's centre inside the target area (radius 0.4 around the goal)
+    # at the last step: robot 0 passed through the area and left it, robot 1 ends inside
+    # near its edge, robot 2 ends just outside.
+    goal = np.array(record.goal)
+    positions = np.tile(goal - [2.0, 0.0], (STEPS + 1, 3, 1))
+    positions[2, 0] = goal  # in the area earlier on: no success
+    positions[-1] = goal + np.array([[1.0, 0.0], [0.39, 0.0], [0.0, 0.41]])
+    ended = dataclasses.replace(record, positions=positions)
+    np.testing.assert_array_equal(ended.succeeded, [False, True, False])
+    positions[-1] = goal + np.array([[0.0, -0.15], [0.0, 0.0], [0.0, 0.15]])
+    all_in = dataclasses.replace(record, positions=positions)
+    assert all_in.succeeded.all()
+    positions[-1] = goal + np.array([[1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    all_out = dataclasses.replace(record, positions=positions)
+    assert not all_out.succeeded.any()
+    # The still marks each end: a green ring for a success, a red cross for a failure (the
+    # legend shows one of each in every picture).
+    red, green = {}, {}
+    for name, outcome in (("ended", ended), ("all_in", all_in), ("all_out", all_out)):
+        draw_episode(outcome, tmp_path / f"{name}.png", dpi=80)
+        pixels = png_pixels(tmp_path / f"{name}.png")
+        red[name], green[name] = colour_count(pixels, FAILURE_COLOUR), colour_count(
+            pixels, GOAL_COLOUR)
+    assert red["all_in"] < red["ended"] < red["all_out"]
+    assert green["all_out"] < green["ended"] < green["all_in"]
+    # The GIF marks the outcomes on its last frame only.
+    gif = tmp_path / "ended.gif"
+    animate_episode(ended, gif, dpi=60)
+    with Image.open(gif) as image:
+        first = np.asarray(image.convert("RGB")).reshape(-1, 3)
+        image.seek(STEPS)
+        last = np.asarray(image.convert("RGB")).reshape(-1, 3)
+    assert colour_count(first, FAILURE_COLOUR) == 0 < colour_count(last, FAILURE_COLOUR)
+    assert colour_count(first, GOAL_COLOUR) < colour_count(last, GOAL_COLOUR)

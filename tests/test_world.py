@@ -1,5 +1,6 @@
 """Tests of :mod:`ccrjax.world`: hand-computed steps, agreement with the maintained MPE
-(``mpe2``), and properties (no NaN/inf) of the contact laws.
+(``mpe2``), properties (no NaN/inf) of the contact laws, and the solid rectangle
+(:func:`rectangle_distance`, :func:`rectangle_stop`).
 
 Every array is batch-last: positions ``[K, 2, B]``.
 """
@@ -24,8 +25,8 @@ from ccrjax.world import (
     contact_penetration,
     disc_contact_forces,
     physics_step,
-    rectangle_contact_force,
-    rectangle_signed_distance,
+    rectangle_distance,
+    rectangle_stop,
 )
 
 PROPERTY = settings(
@@ -328,53 +329,66 @@ def test_continuous_action_matches_mpe2_five_way_encoding():
 # --------------------------------------------------------------------------- rectangle
 
 
-def test_rectangle_signed_distance_hand_computed():
+def test_rectangle_distance_hand_computed():
     # Rectangle centred at (1, 2), half extent (0.5, 0.25): x in [0.5, 1.5], y in [1.75, 2.25].
     centre = jnp.array([[1.0], [2.0]], jnp.float32)
     half = jnp.array([[0.5], [0.25]], jnp.float32)
     points = batched(
-        [2.0, 2.0],  # right of it by 0.5, normal (1, 0)
-        [1.0, 1.5],  # below by 0.25, normal (0, -1)
-        [1.8, 2.65],  # off the top-right corner by (0.3, 0.4): distance 0.5, normal (0.6, 0.8)
-        [1.4, 2.0],  # inside, 0.1 from the right face (0.25 from top/bottom): -0.1, (1, 0)
-        [0.7, 2.2],  # inside, 0.2 from the left face, 0.05 from the top: -0.05, (0, 1)
-        [1.0, 2.0],  # the centre: depth 0.25 through the top/bottom faces
+        [2.0, 2.0],  # right of it by 0.5
+        [1.0, 1.5],  # below by 0.25
+        [1.8, 2.65],  # off the top-right corner by (0.3, 0.4): 0.5
+        [1.4, 2.0],  # inside, 0.1 from the right face (0.25 from top and bottom): -0.1
+        [0.7, 2.2],  # inside, 0.2 from the left face, 0.05 from the top: -0.05
+        [1.0, 2.0],  # the centre: 0.25 below the top and bottom faces
+        [1.5, 2.25],  # exactly on the corner
     )
-    distance, normal = jax.jit(rectangle_signed_distance)(points, centre, half)
+    distance = jax.jit(rectangle_distance)(points, centre, half)
+    assert distance.shape == (7, 1)
     np.testing.assert_allclose(
-        distance[:, 0], [0.5, 0.25, 0.5, -0.1, -0.05, -0.25], atol=1e-6
+        distance[:, 0], [0.5, 0.25, 0.5, -0.1, -0.05, -0.25, 0.0], atol=1e-6
     )
-    np.testing.assert_allclose(normal[:5, :, 0], [[1, 0], [0, -1], [0.6, 0.8], [1, 0], [0, 1]],
-                               atol=1e-6)
-    np.testing.assert_allclose(np.linalg.norm(normal[5, :, 0]), 1.0, atol=1e-6)
-    assert abs(float(normal[5, 0, 0])) < 1e-6  # out through the nearest (y) face
-
-    # Contact force on a disc of radius 0.05 touching 0.02 deep from the right:
-    # centre at x = 1.5 + 0.03: gap -0.02, force 100 * 0.02 along +x = (2, 0).
-    force = jax.jit(rectangle_contact_force, static_argnames="params")(
-        batched([1.53, 2.0]), jnp.array([0.05]), centre, half, params=PhysicsParams()
-    )
-    np.testing.assert_allclose(force[0, :, 0], [2.0, 0.0], atol=1e-5)
 
 
-def test_rectangle_entry_side_hand_computed():
-    # Rectangle centred at the origin, half extent (0.2, 0.5): x in [-0.2, 0.2].
+rectangle_stop_jit = jax.jit(rectangle_stop)
+
+
+def test_rectangle_stop_hand_computed():
+    # Rectangle at the origin, half extent (0.2, 0.5); discs of radius 0.05: a centre may not
+    # enter the grown rectangle x in [-0.25, 0.25], y in [-0.55, 0.55].
     centre = jnp.zeros((2, 1), jnp.float32)
     half = jnp.array([[0.2], [0.5]], jnp.float32)
-    points = batched(
-        [0.1, 0.0],  # past the mid-line, came from the left: out left, 0.3 deep
-        [0.1, -0.2],  # came from above: out through the top, 0.5 + 0.2 = 0.7 deep
-        [0.1, 0.0],  # came from up-left, (-0.3, 0.4) off the corner: more y than x, out
-        #             the top, 0.5 deep
-        [0.1, 0.0],  # entry unknown (inside): the nearest face, the right one, 0.1 deep
-        [0.5, 0.0],  # outside: the entry does not matter
+    cases = [
+        # (previous, after the physics step, velocity) -> (position, velocity)
+        # Into the -x face: stopped on it, x velocity zeroed, the new y kept (it slides).
+        ([-0.4, 0.1], [-0.2, 0.15], [2.0, 0.5], [-0.25, 0.15], [0.0, 0.5]),
+        # At 10 units/s, 1.0 in one step, through the whole rectangle: stopped at the entry.
+        ([-0.4, 0.0], [0.6, 0.0], [10.0, 0.0], [-0.25, 0.0], [0.0, 0.0]),
+        # The same, at an angle: entry face -x, the new y kept.
+        ([-0.4, -0.1], [0.6, 0.3], [10.0, 4.0], [-0.25, 0.3], [0.0, 4.0]),
+        # Sliding along the -x face: untouched.
+        ([-0.25, 0.0], [-0.25, 0.2], [0.0, 2.0], [-0.25, 0.2], [0.0, 2.0]),
+        # Moving away from the -x face: untouched.
+        ([-0.25, 0.1], [-0.45, 0.1], [-2.0, 0.0], [-0.45, 0.1], [-2.0, 0.0]),
+        # Into the top face from above: stopped on it (y = 0.55), y velocity zeroed.
+        ([0.1, 0.7], [0.05, 0.5], [-0.5, -2.0], [0.05, 0.55], [-0.5, 0.0]),
+        # Past the top-left corner, into the y slab first (t = 1/3), then the x slab
+        # (t = 1/2): it hit the -x face (at y = 0.5), where it is stopped.
+        ([-0.35, 0.65], [-0.15, 0.35], [2.0, -3.0], [-0.25, 0.35], [0.0, -3.0]),
+        # Past the same corner, into the x slab first (t = 1/4), the y slab last (t = 2/3):
+        # it hit the top face.
+        ([-0.3, 0.75], [-0.1, 0.45], [2.0, -3.0], [-0.1, 0.55], [2.0, 0.0]),
+        # Close by the corner, but the segment ends before it enters: untouched.
+        ([-0.4, 0.7], [-0.1, 0.6], [3.0, -1.0], [-0.1, 0.6], [3.0, -1.0]),
+        # Resting on the face: untouched.
+        ([-0.25, 0.3], [-0.25, 0.3], [0.0, 0.0], [-0.25, 0.3], [0.0, 0.0]),
+    ]
+    previous, moved, velocity, want_position, want_velocity = (
+        batched(*column) for column in zip(*cases, strict=True)
     )
-    entry = batched([-0.5, 0.0], [0.0, 0.8], [-0.5, 0.9], [0.0, 0.0], [-0.5, 0.0])
-    distance, normal = jax.jit(rectangle_signed_distance)(points, centre, half, entry)
-    np.testing.assert_allclose(distance[:, 0], [-0.3, -0.7, -0.5, -0.1, 0.3], atol=1e-6)
-    np.testing.assert_allclose(
-        normal[:, :, 0], [[-1, 0], [0, 1], [0, 1], [1, 0], [1, 0]], atol=1e-6
-    )
+    radius = jnp.full((len(cases),), 0.05, jnp.float32)
+    position, velocity = rectangle_stop_jit(previous, moved, velocity, radius, centre, half)
+    np.testing.assert_allclose(position, want_position, atol=1e-6)
+    np.testing.assert_allclose(velocity, want_velocity, atol=1e-6)
 
 
 finite32 = st.floats(-10.0, 10.0, width=32)
@@ -411,6 +425,7 @@ def test_physics_step_never_produces_nan_or_inf(config, max_speed):
         assert np.all(np.linalg.norm(np.asarray(v), axis=1) <= max_speed * (1 + 1e-5))
 
 
+
 def reference_signed_distance(point, centre, half):
     """float64 signed distance of one point to an axis-aligned rectangle."""
     rel = np.abs(point.astype(np.float64) - centre.astype(np.float64))
@@ -418,16 +433,6 @@ def reference_signed_distance(point, centre, half):
     if np.all(excess <= 0):
         return float(np.max(excess))
     return float(np.linalg.norm(np.maximum(excess, 0.0)))
-
-
-rectangle_jit = jax.jit(
-    lambda p, r, c, h, e: (
-        rectangle_signed_distance(p, c, h),
-        rectangle_contact_force(p, r, c, h, PhysicsParams()),
-        rectangle_signed_distance(p, c, h, e),
-        rectangle_contact_force(p, r, c, h, PhysicsParams(), entry=e),
-    )
-)
 
 
 @st.composite
@@ -448,46 +453,124 @@ def rectangle_cases(draw):
         centre + np.array([sx * (half[0] + 1.0 + abs(u[0])), u[1] * 3.0]),  # outside
         np.array(draw(st.tuples(finite32, finite32))),  # anywhere
     ]
-    # Where each point came from: anywhere, the point itself, the centre, or a face.
-    entries = [
-        draw(st.sampled_from([points[k], centre, points[1], points[4]]))
-        if draw(st.booleans())
-        else np.array(draw(st.tuples(finite32, finite32)))
-        for k in range(6)
-    ]
-    return centre, half, np.stack(points).astype(np.float32), np.stack(entries).astype(np.float32)
+    return centre, half, np.stack(points).astype(np.float32)
 
 
 @PROPERTY
 @given(rectangle_cases())
-def test_rectangle_distance_and_force_are_finite_and_correct(case):
-    centre, half, points, entries = case
-    (distance, normal), force, (entry_distance, entry_normal), entry_force = rectangle_jit(
-        jnp.asarray(points[:, :, None]),
-        jnp.full((6,), 0.05, jnp.float32),
-        jnp.asarray(centre[:, None]),
-        jnp.asarray(half[:, None]),
-        jnp.asarray(entries[:, :, None]),
+def test_rectangle_distance_is_finite_and_correct(case):
+    centre, half, points = case
+    distance = np.asarray(
+        jax.jit(rectangle_distance)(
+            jnp.asarray(points[:, :, None]), jnp.asarray(centre[:, None]),
+            jnp.asarray(half[:, None]),
+        )
     )
-    distance, normal, force = (np.asarray(x) for x in (distance, normal, force))
-    entry_distance, entry_normal, entry_force = (
-        np.asarray(x) for x in (entry_distance, entry_normal, entry_force)
-    )
-    # With an entry point: finite, unit normals, a distance no deeper than the rectangle is
-    # wide, and for points outside exactly what it is without one.
-    assert np.all(np.isfinite(entry_distance)) and np.all(np.isfinite(entry_force))
-    np.testing.assert_allclose(np.linalg.norm(entry_normal[:, :, 0], axis=1), 1.0, atol=1e-5)
-    assert np.all(entry_distance >= -2 * half.max() - 1e-5)
-    outside = distance[:, 0] > 0
-    np.testing.assert_array_equal(entry_distance[outside], distance[outside])
-    np.testing.assert_array_equal(entry_normal[outside], normal[outside])
     assert np.all(np.isfinite(distance))
-    assert np.all(np.isfinite(normal))
-    assert np.all(np.isfinite(force))
-    np.testing.assert_allclose(np.linalg.norm(normal[:, :, 0], axis=1), 1.0, atol=1e-5)
     for k in range(6):
         expected = reference_signed_distance(points[k], centre, half)
         assert abs(distance[k, 0] - expected) <= 1e-5 * (1 + abs(expected) + np.abs(centre).max())
-    # The force pushes along the outward normal, never inward.
-    along = np.sum(force[:, :, 0] * normal[:, :, 0], axis=1)
-    assert np.all(along >= 0.0)
+
+
+def segment_meets_box(start, end, centre, half):
+    """float64 slab test: whether the segment ``start -> end`` meets the closed box."""
+    low, high = 0.0, 1.0
+    for axis in range(2):
+        s, d = start[axis] - centre[axis], end[axis] - start[axis]
+        if d == 0.0:
+            if abs(s) > half[axis]:
+                return False
+            continue
+        t_a, t_b = (-half[axis] - s) / d, (half[axis] - s) / d
+        low, high = max(low, min(t_a, t_b)), min(high, max(t_a, t_b))
+    return low <= high
+
+
+@st.composite
+def approaches(draw):
+    """A rectangle, and 16 discs that approach it, then move on from where they were stopped.
+
+    The first segment of each disc starts outside the grown rectangle (on any side, also
+    off the corners, up to 1.5 away) and heads at up to 15 units/s (1.5 per 0.1 s step) for
+    a random point of the rectangle or near it; the second one starts where the first was
+    stopped and moves at any speed in any direction, often along one axis only (sliding
+    along a face, or pushing straight into it).
+    """
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-3.0, 3.0, 2)
+    half = rng.uniform(0.05, 1.5, 2)
+    radius = draw(st.sampled_from([0.05, 0.05, 0.01, 0.2]))
+    grown = half + radius
+    k = 16
+    # Start: a point of the grown boundary (corners included), pushed out by a gap that is
+    # sometimes zero.
+    side = rng.integers(0, 4, k)
+    along = rng.uniform(-1.0, 1.0, k)
+    corner = rng.random(k) < 0.25
+    along[corner] = rng.choice([-1.0, 1.0], int(corner.sum()))
+    unit = np.where(side[:, None] < 2, np.stack([np.where(side == 0, -1.0, 1.0), along], 1),
+                    np.stack([along, np.where(side == 2, -1.0, 1.0)], 1))
+    gap = np.where(rng.random(k) < 0.3, 0.0, rng.uniform(0.0, 1.5, k))
+    outward = np.where(side[:, None] < 2, [[1.0, 0.0]], [[0.0, 1.0]]) * np.sign(unit)
+    start = centre + unit * grown + gap[:, None] * outward
+    aim = centre + rng.uniform(-1.3, 1.3, (k, 2)) * grown
+    heading = aim - start
+    heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
+    first = heading * rng.uniform(0.0, 1.5, (k, 1))
+    angle = rng.uniform(0.0, 2 * np.pi, k)
+    second = np.stack([np.cos(angle), np.sin(angle)], 1) * rng.uniform(0.0, 1.5, (k, 1))
+    only = rng.integers(0, 3, k)  # 0: both axes; 1: x only; 2: y only
+    second[only == 1, 1] = 0.0
+    second[only == 2, 0] = 0.0
+    return (centre.astype(np.float32), half.astype(np.float32), np.float32(radius),
+            start.astype(np.float32), first.astype(np.float32), second.astype(np.float32))
+
+
+def check_stop(previous, moved, velocity, position, new_velocity, centre, half, radius):
+    """The invariants of one :func:`rectangle_stop` of discs ``[K, 2]`` (numpy, one env)."""
+    distance = np.asarray(
+        rectangle_distance(jnp.asarray(position[:, :, None]), jnp.asarray(centre[:, None]),
+                           jnp.asarray(half[:, None]))
+    )[:, 0]
+    assert np.all(distance >= radius - 1e-5), distance.min() - radius
+    changed = position != moved
+    assert not np.any(changed.all(axis=1)), "both coordinates changed"
+    # A stopped disc stays on its path: the corrected coordinate lies between where it was
+    # and where it would have gone (no jump to another face, no push back past its start).
+    low, high = np.minimum(previous, moved), np.maximum(previous, moved)
+    assert np.all(position >= low - 1e-5) and np.all(position <= high + 1e-5), (
+        previous[np.any((position < low - 1e-5) | (position > high + 1e-5), axis=1)]
+    )
+    # Its velocity loses (at most) the component of the stopped axis.
+    np.testing.assert_array_equal(np.where(changed, velocity, new_velocity), velocity)
+    assert np.all((new_velocity == velocity) | (new_velocity == 0.0))
+    # A disc whose path clearly misses the grown rectangle is untouched.
+    grown = half.astype(np.float64) + radius + 1e-4
+    for k in range(len(previous)):
+        if not segment_meets_box(previous[k].astype(np.float64), moved[k].astype(np.float64),
+                                 centre.astype(np.float64), grown):
+            np.testing.assert_array_equal(position[k], moved[k])
+            np.testing.assert_array_equal(new_velocity[k], velocity[k])
+
+
+@PROPERTY
+@given(approaches())
+def test_rectangle_stop_never_lets_a_disc_in(case):
+    centre, half, radius, start, first, second = case
+    k = len(start)
+    radii = jnp.full((k,), radius, jnp.float32)
+    c, h = jnp.asarray(centre[:, None]), jnp.asarray(half[:, None])
+    previous = start
+    for displacement in (first, second):
+        moved = (previous + displacement).astype(np.float32)
+        velocity = (10.0 * displacement).astype(np.float32)
+        position, new_velocity = (
+            np.asarray(x)[:, :, 0]
+            for x in rectangle_stop_jit(
+                jnp.asarray(previous[:, :, None]), jnp.asarray(moved[:, :, None]),
+                jnp.asarray(velocity[:, :, None]), radii, c, h,
+            )
+        )
+        check_stop(previous, moved, velocity, position, new_velocity, centre, half, radius)
+        previous = position

@@ -58,16 +58,16 @@ class HiddenObstacle(Scenario):
         """Also refuses an obstacle that can block every way past it.
 
         Robots are not walled in, but the arena frames the task: between the
-        longest obstacle, drawn furthest from the middle, and the arena's edge there
-        must be room for two robots side by side on the shorter side.
+        longest obstacle, drawn nearest the middle, and the arena's edge there must be
+        room for two robots side by side on its longer side. (Drawn at height ``y``, an
+        obstacle of half length ``L`` leaves ``A - L + |y|`` on its longer side.)
         """
         super().check_layout(layout, robot_radius)
         half_length = 0.5 * float(self.length_range[1])
         low_y, high_y = layout.hazard_y_range
         arena_y = layout.arena_half_extent[1]
-        gap_above = arena_y - (low_y + half_length)
-        gap_below = (high_y - half_length) + arena_y
-        if max(gap_above, gap_below) < 4 * robot_radius:
+        nearest = 0.0 if low_y <= 0.0 <= high_y else min(abs(low_y), abs(high_y))
+        if arena_y - half_length + nearest < 4 * robot_radius:
             raise ValueError(
                 f"HiddenObstacle.length_range {self.length_range} with Layout.hazard_y_range "
                 f"{layout.hazard_y_range} can block every way past the obstacle inside the "
