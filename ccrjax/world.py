@@ -264,8 +264,9 @@ def rectangle_stop(
     ``t in [0, 1]`` inside both axis slabs). A segment that enters it, however fast
     and at whatever angle (so also a disc that would tunnel through), entered
     through the face of the axis whose slab it entered last; the disc is stopped on
-    that face, keeping its new coordinate along the face (it slides), and loses its
-    velocity into the face (an inelastic contact). Discs that did not enter are
+    that face, keeping its new coordinate along the face (it slides) but not beyond the
+    face's ends (a disc that clips a corner stops at the corner, touching it), and loses
+    its velocity into the face (an inelastic contact). Discs that did not enter are
     untouched. A disc thus never overlaps the rectangle (beyond float32 rounding, about
     1e-6), in any pile or corner.
 
@@ -307,10 +308,13 @@ def rectangle_stop(
     through_x = lows[0] >= lows[1]
     new_position, new_velocity = [], []
     for axis, through in ((0, through_x), (1, ~through_x)):
-        stop = hit & through
         side = sides[axis]
-        face = centre[axis][None] + side * (half_extent[axis][None] + r)
-        new_position.append(jnp.where(stop, face, position[:, axis]))
+        grown = half_extent[axis][None] + r
+        face = centre[axis][None] + side * grown
+        # Stopped on the entry face; along the face (the other axis), kept within the
+        # face's ends, so a disc that clipped a corner stops at the corner, touching.
+        along = jnp.clip(position[:, axis], centre[axis][None] - grown, centre[axis][None] + grown)
+        new_position.append(jnp.where(hit, jnp.where(through, face, along), position[:, axis]))
         into_face = side * velocity[:, axis] < 0.0
-        new_velocity.append(jnp.where(stop & into_face, 0.0, velocity[:, axis]))
+        new_velocity.append(jnp.where(hit & through & into_face, 0.0, velocity[:, axis]))
     return jnp.stack(new_position, axis=1), jnp.stack(new_velocity, axis=1)

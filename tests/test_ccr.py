@@ -179,22 +179,33 @@ def drift_actions(obs, key):
     return jnp.clip(u + jnp.asarray([0.6, 0.0]), -1.0, 1.0)
 
 
+def random_actions(obs, key):
+    """Uniform random forces: the learners' warm-up, on which training first fits the model."""
+    num_envs, num_robots, _ = obs.shape
+    return jax.random.uniform(key, (num_envs, num_robots, 2), minval=-1.0, maxval=1.0)
+
+
 @pytest.fixture(scope="module")
 def fitted_rollouts():
     """Per scenario: the model fitted on FIT_EPISODES episodes of the scenario's own
-    random-drift transitions, then one more episode's raw scores (window m = 0)."""
+    random-action transitions (as in training, whose first transitions are the warm-up's
+    random actions), then one episode of random-drift transitions, which reach the hazard,
+    and its raw scores (window m = 0)."""
     results = {}
     for scenario in ("nominal", "turbulence", "strong_wind", "hidden_obstacle"):
         env = CCREnv(scenario, num_envs=FIT_ENVS, episode_length=FIT_LENGTH)
         transform = CCR(CCRConfig(window=0))
         state = transform.init(env)
         episode_fn = jax.jit(
-            lambda state, key, env=env, transform=transform: run_episode(
-                env, transform, state, drift_actions, False, key
-            )
+            lambda state, key, act, env=env, transform=transform: run_episode(
+                env, transform, state, act, False, key
+            ),
+            static_argnums=2,
         )
-        for key in jax.random.split(jax.random.PRNGKey(0), FIT_EPISODES + 1):
-            state, episode = episode_fn(state, key)
+        keys = jax.random.split(jax.random.PRNGKey(0), FIT_EPISODES + 1)
+        for key in keys[:-1]:
+            state, _ = episode_fn(state, key, random_actions)
+        state, episode = episode_fn(state, keys[-1], drift_actions)
         raw = np.asarray(episode.info["emergency_score"])  # [T, N, E]: transition t -> t+1
         position = np.asarray(episode.position)  # [T + 1, N, 2, E]
         gap = np.linalg.norm(position[:-1, None] - position[:-1, :, None], axis=3)

@@ -507,7 +507,10 @@ def test_obstacle_is_solid_through_the_environment(pile_env, seed):
     distance = np.asarray(jax.vmap(
         lambda p: rectangle_distance(p, hazard.centre, hazard.half_extent))(positions))
     assert distance.min() >= env.robot_radius - 1e-5, distance.min() - env.robot_radius
-    touching = distance <= env.robot_radius + env.scenario.touch_tolerance
+    # Touching: the centre within the tolerance of the obstacle grown by the radius.
+    p = np.asarray(positions, np.float64)  # [T, N, 2, B]
+    out = np.maximum(np.abs(p - centre[None, None]) - (half + env.robot_radius)[None, None], 0.0)
+    touching = np.hypot(out[:, :, 0], out[:, :, 1]) <= env.scenario.touch_tolerance
     np.testing.assert_array_equal(np.asarray(danger), touching)
     assert touching[-1][:, ::2].sum() >= PILE_ENVS  # the piles press against the face
 

@@ -435,8 +435,8 @@ def test_area_features_visible_only_inside(name):
 
 
 def test_obstacle_feature_is_the_touching_flag():
-    # Touching: the disc (radius 0.05) within touch_tolerance (0.01) of the obstacle, i.e.
-    # its centre within 0.06 of the rectangle.
+    # Touching: the centre within touch_tolerance (0.01) of the obstacle grown by the radius
+    # (0.05), the square-cornered region the obstacle stops robots at.
     scenario = HiddenObstacle()
     hazard = make_hazard((0.0, 0.0), (0.2, 0.5))  # x in [-0.2, 0.2], y in [-0.5, 0.5]
     placed = positions(
@@ -446,11 +446,12 @@ def test_obstacle_feature_is_the_touching_flag():
         (-0.25, 0.0),  # 0.05: in contact (where the obstacle stops a robot), touching
         (0.0, 0.54),  # 0.04 from the top (overlapping): touching
         (0.0, 0.0),  # centre inside: touching
-        (0.24, 0.54),  # off the corner by (0.04, 0.04), 0.0566 <= 0.06: touching
-        (0.25, 0.55),  # off the corner by (0.05, 0.05), 0.0707 > 0.06: not touching
+        (0.24, 0.54),  # off the corner by (0.04, 0.04): inside the grown corner, touching
+        (0.25, 0.55),  # off the corner by (0.05, 0.05): the grown corner, where a robot
+        #                that clips it is stopped, touching
         (1.0, 1.0),  # far: not touching
     )
-    touching = [0, 0, 1, 1, 1, 1, 1, 0, 0]
+    touching = [0, 0, 1, 1, 1, 1, 1, 1, 0]
     features = call(scenario, "hazard_features", hazard, placed, radii(9))
     assert features.shape == (9, 1, 1)
     np.testing.assert_array_equal(features[:, 0, 0], touching)
@@ -459,7 +460,7 @@ def test_obstacle_feature_is_the_touching_flag():
     # The tolerance is a parameter: with none, only contact counts.
     exact = HiddenObstacle(touch_tolerance=0.0)
     np.testing.assert_array_equal(call(exact, "in_danger", hazard, placed, radii(9))[:, 0],
-                                  [0, 0, 0, 1, 1, 1, 0, 0, 0])
+                                  [0, 0, 0, 1, 1, 1, 1, 1, 0])
 
 
 def test_nominal_has_no_features():

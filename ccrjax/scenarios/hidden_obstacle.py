@@ -14,7 +14,8 @@ obstacle is stopped at the obstacle's surface and loses its velocity into it
 (:func:`ccrjax.world.rectangle_stop`), at any speed, angle, corner or pile; robots
 still collide with each other through the MPE's contact law. A robot observes one
 feature: whether it touches the obstacle (its disc within ``touch_tolerance`` of the
-surface), which is also the paper's dangerous state ("colliding with the obstacle").
+surface, or stopped at a corner), which is also the paper's dangerous state ("colliding
+with the obstacle").
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from ccrjax.scenarios.base import (
     check_range,
     sample_centre,
 )
-from ccrjax.world import rectangle_distance, rectangle_stop
+from ccrjax.world import rectangle_stop
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,9 +88,19 @@ class HiddenObstacle(Scenario):
         )
 
     def touching(self, hazard: Hazard, position: jax.Array, radius: jax.Array) -> jax.Array:
-        """``bool[N, B]``: the robot's disc is within ``touch_tolerance`` of the obstacle."""
-        distance = rectangle_distance(position, hazard.centre, hazard.half_extent)
-        return distance <= radius[:, None] + self.touch_tolerance
+        """``bool[N, B]``: the robot's centre is within ``touch_tolerance`` of the obstacle
+        grown by its radius, the region :meth:`constrain` keeps it out of.
+
+        Along a face this is the disc within ``touch_tolerance`` of the obstacle; at a
+        corner the grown rectangle is square where the disc's reach is round, so a disc
+        stopped there counts as touching up to ``(sqrt(2) - 1) r`` (0.02) early: every
+        robot the obstacle stops is in contact with it.
+        """
+        grown = hazard.half_extent[None] + radius[:, None, None]  # [N, 2, B]
+        rel_x = jnp.abs(position[:, 0] - hazard.centre[0][None]) - grown[:, 0]
+        rel_y = jnp.abs(position[:, 1] - hazard.centre[1][None]) - grown[:, 1]
+        out_x, out_y = jnp.maximum(rel_x, 0.0), jnp.maximum(rel_y, 0.0)
+        return out_x * out_x + out_y * out_y <= self.touch_tolerance**2
 
     def constrain(self, hazard, previous, position, velocity, radius):
         """Stops robots at the obstacle's surface (:func:`ccrjax.world.rectangle_stop`)."""
