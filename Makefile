@@ -8,7 +8,7 @@ PEER_VENV  := benchmarks/.peer-venv
 PEER_PY    := $(PEER_VENV)/bin/python
 PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train demo test lint bench bench-peers sweep tables clean
+.PHONY: install train demo test lint bench bench-peers sweep tables mutants clean
 
 install: $(STAMP)
 
@@ -47,6 +47,11 @@ sweep: install
 TABLES_ARGS ?=
 tables: install
 	$(PY) experiments/tables.py $(TABLES_ARGS)
+
+# Mutation check: small bugs in the core code (tools/mutants.toml), each caught by named
+# tests; every file is restored afterwards. Exit status 1 if a mutant survives.
+mutants: install
+	$(PY) tools/mutants.py
 
 # Peer comparison: JaxMARL's MPE simple_spread, measured the same way, in its own venv.
 bench-peers: $(PEER_STAMP)

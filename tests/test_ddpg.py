@@ -81,44 +81,56 @@ def test_actor_loss_input_replaces_only_the_robots_own_action(learners):
         np.testing.assert_array_equal(inputs[:, i], expected)
 
 
-@pytest.mark.parametrize("algo", ["maddpg", "iddpg"])
-def test_td_target_matches_a_hand_computation(learners, algo):
-    learner, state = learners[algo]
-    state = state.replace(
+def np_mlp(params, x) -> np.ndarray:
+    """A ReLU :class:`~ccrjax.learners.networks.MLP` in numpy (one robot's parameters)."""
+    layers = params["params"]
+    x = np.asarray(x, np.float64)
+    for n in range(len(layers)):
+        layer = layers[f"Dense_{n}"]
+        x = x @ np.asarray(layer["kernel"]) + np.asarray(layer["bias"])
+        if n < len(layers) - 1:
+            x = np.maximum(x, 0.0)
+    return x
+
+
+def robot(tree, i):
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[i], tree)
+
+
+def with_distinct_targets(state):
+    """Targets that differ from the online networks, so that tests can tell them apart."""
+    return state.replace(
         target_actor=jax.tree_util.tree_map(lambda x: x * 1.5, state.actor),
         target_critic=jax.tree_util.tree_map(lambda x: x - 0.1, state.critic),
     )
+
+
+@pytest.mark.parametrize("algo", ["maddpg", "iddpg"])
+def test_td_target_matches_a_hand_computation(learners, algo):
+    learner, state = learners[algo]
+    state = with_distinct_targets(state)
     batch = batch_of(jax.random.PRNGKey(4))
     target = learner.td_target(state, batch)
     gamma = learner.config.gamma
+    # The target actors' next actions, in numpy: tanh of each robot's own network.
+    next_actions = np.stack(
+        [np.tanh(np_mlp(robot(state.target_actor, j), batch.next_obs[:, j])) for j in range(N)],
+        axis=1,
+    )
+    done = np.asarray(batch.done)
+    assert done[0] == 1 and not done[1:].any()
     for i in range(N):
-        actor_i = jax.tree_util.tree_map(lambda x, i=i: x[i], state.target_actor)
-        critic_i = jax.tree_util.tree_map(lambda x, i=i: x[i], state.target_critic)
-        next_actions = np.stack(
-            [
-                np.tanh(
-                    learner.actor.apply(
-                        jax.tree_util.tree_map(lambda x, j=j: x[j], state.target_actor),
-                        batch.next_obs[:, j],
-                    )
-                )
-                for j in range(N)
-            ],
-            axis=1,
-        )
-        np.testing.assert_allclose(
-            next_actions[:, i], np.tanh(learner.actor.apply(actor_i, batch.next_obs[:, i])),
-            rtol=1e-6,
-        )
         if algo == "maddpg":
             x = np.concatenate(
                 [np.asarray(batch.next_obs).reshape(B, -1), next_actions.reshape(B, -1)], axis=-1
             )
         else:
             x = np.concatenate([batch.next_obs[:, i], next_actions[:, i]], axis=-1)
-        q_next = np.asarray(learner.critic.apply(critic_i, x))[:, 0]
-        expected = np.asarray(batch.reward[:, i]) + gamma * (1 - np.asarray(batch.done)) * q_next
-        np.testing.assert_allclose(target[:, i], expected, rtol=1e-5, atol=1e-5)
+        q_next = np_mlp(robot(state.target_critic, i), x)[:, 0]
+        expected = np.asarray(batch.reward[:, i]) + gamma * (1 - done) * q_next
+        np.testing.assert_allclose(target[:, i], expected, rtol=1e-5, atol=1e-6)
+        # The bootstrap term is not negligible: a target without it would fail above.
+        assert np.min(np.abs(q_next[1:])) > 1e-3
 
 
 def test_soft_update_is_polyak_averaging():
@@ -129,25 +141,127 @@ def test_soft_update_is_polyak_averaging():
 
 
 @pytest.mark.parametrize("algo", ["maddpg", "iddpg"])
-def test_update_moves_targets_by_tau_and_lowers_critic_loss(learners, algo):
+def test_update_moves_both_targets_by_tau_and_lowers_critic_loss(learners, algo):
     learner, state = learners[algo]
+    state = with_distinct_targets(state)
     batch = batch_of(jax.random.PRNGKey(5))
     update = jax.jit(learner.update)
     new_state, metrics = update(state, batch, jax.random.PRNGKey(0))
     tau = learner.config.tau
-    for t_old, t_new, online in zip(
-        jax.tree_util.tree_leaves(state.target_critic),
-        jax.tree_util.tree_leaves(new_state.target_critic),
-        jax.tree_util.tree_leaves(new_state.critic),
-        strict=True,
+    for old_target, new_target, old_online, new_online in (
+        (state.target_actor, new_state.target_actor, state.actor, new_state.actor),
+        (state.target_critic, new_state.target_critic, state.critic, new_state.critic),
     ):
-        np.testing.assert_allclose(t_new, (1 - tau) * t_old + tau * online, rtol=1e-6, atol=1e-7)
+        for t_old, t_new, o_old, o_new in zip(
+            jax.tree_util.tree_leaves(old_target),
+            jax.tree_util.tree_leaves(new_target),
+            jax.tree_util.tree_leaves(old_online),
+            jax.tree_util.tree_leaves(new_online),
+            strict=True,
+        ):
+            t_old, t_new = np.asarray(t_old, np.float64), np.asarray(t_new, np.float64)
+            expected = (1 - tau) * t_old + tau * np.asarray(o_new, np.float64)
+            np.testing.assert_allclose(t_new, expected, rtol=1e-6, atol=1e-7)
+            # The online network moved, so the check tells the new online from the old one.
+            assert not np.allclose(o_old, o_new, rtol=0, atol=1e-5)
     assert all(np.isfinite(v) for v in jax.tree_util.tree_leaves(metrics))
     # Repeated updates on one batch fit the critic to its (slowly moving) target.
     first_loss = float(metrics["critic_loss"])
     for _ in range(30):
         new_state, metrics = update(new_state, batch, jax.random.PRNGKey(0))
     assert float(metrics["critic_loss"]) < first_loss
+
+
+@pytest.mark.parametrize("algo", ["maddpg", "iddpg"])
+def test_one_actor_step_raises_q_at_the_actors_action(learners, algo):
+    """The actor climbs the critic it is trained on (the updated one): every robot's mean
+    ``Q_i(o, a_-i, mu_i(o_i))`` is higher under the new actor than under the old."""
+    learner, state = learners[algo]
+    batch = batch_of(jax.random.PRNGKey(8))
+    new_state, _ = jax.jit(learner.update)(state, batch, jax.random.PRNGKey(0))
+
+    @jax.jit
+    def q_at_own_action(actor, critic):
+        own, _ = learner.policy(actor, batch.obs)
+        inputs = learner.critic_input_with_own(batch.obs, batch.action, own)
+        return jnp.mean(learner.q_values(critic, inputs), axis=0)  # [N]
+
+    before = np.asarray(q_at_own_action(state.actor, new_state.critic))
+    after = np.asarray(q_at_own_action(new_state.actor, new_state.critic))
+    assert np.all(after > before + 1e-5), (before, after)
+
+
+def adam_first_moment(opt_state):
+    """Adam's first moment after one step from zero: ``(1 - b1) g`` (b1 = 0.9)."""
+    (adam, _) = opt_state
+    return jax.tree_util.tree_map(lambda m: np.asarray(m, np.float64) / 0.1, adam.mu)
+
+
+def clipped_by_hand(grads, max_norm):
+    """Each robot's gradient of each variable scaled to norm ``max_norm`` if it is longer."""
+
+    def clip(g):
+        g = np.asarray(g, np.float64)
+        norm = np.sqrt(np.sum(g.reshape(g.shape[0], -1) ** 2, axis=1))
+        scale = np.minimum(1.0, max_norm / norm)
+        return g * scale.reshape((-1,) + (1,) * (g.ndim - 1)), norm
+
+    return jax.tree_util.tree_map(clip, grads)
+
+
+@pytest.mark.parametrize("algo", ["maddpg", "iddpg"])
+def test_huge_gradients_are_clipped_per_robot_and_variable(learners, algo):
+    """Rewards of 1e6 and a critic scaled up make every gradient far longer than 0.5; the
+    gradient each optimiser received (Adam's first moment) is the hand-computed gradient
+    clipped to norm 0.5 per robot and variable (the original MADDPG's ``clip_by_norm``).
+    One Adam step from zero is scale-free, so the first moment is where clipping shows."""
+    learner, state = learners[algo]
+    clip = learner.config.grad_clip
+    assert clip == 0.5
+    state = state.replace(critic=jax.tree_util.tree_map(lambda x: 100.0 * x, state.critic))
+    state = state.replace(target_critic=state.critic,
+                          critic_opt=learner.critic_optimiser.init(state.critic))
+    batch = batch_of(jax.random.PRNGKey(9))
+    batch = batch.replace(reward=batch.reward * 1e6)
+    new_state, _ = jax.jit(learner.update)(state, batch, jax.random.PRNGKey(0))
+    config = learner.config
+
+    @jax.jit
+    def critic_grads(params):
+        target = learner.td_target(state, batch)
+        inputs = learner.critic_input(batch.obs, batch.action)
+
+        def loss(params):
+            q = learner.q_values(params, inputs)
+            return jnp.sum(jnp.mean((q - target) ** 2, axis=0))
+
+        return jax.grad(loss)(params)
+
+    @jax.jit
+    def actor_grads(params, critic):
+        def loss(params):
+            pre = jax.vmap(learner.actor.apply, in_axes=(0, 1), out_axes=1)(params, batch.obs)
+            inputs = learner.critic_input_with_own(batch.obs, batch.action, jnp.tanh(pre))
+            q = learner.q_values(critic, inputs)
+            return jnp.sum(-jnp.mean(q, axis=0)) + config.actor_regulariser * jnp.sum(
+                jnp.mean(pre**2, axis=(0, 2))
+            )
+
+        return jax.grad(loss)(params)
+
+    for received, grads in (
+        (new_state.critic_opt, critic_grads(state.critic)),
+        # The actor's loss goes through the critic updated in the same step.
+        (new_state.actor_opt, actor_grads(state.actor, new_state.critic)),
+    ):
+        expected = clipped_by_hand(grads, clip)
+        got = adam_first_moment(received)
+        flat_expected = jax.tree_util.tree_leaves(expected, is_leaf=lambda x: isinstance(x, tuple))
+        for (want, norm), have in zip(flat_expected, jax.tree_util.tree_leaves(got), strict=True):
+            assert np.all(norm > 4 * clip), norm  # every gradient is clipped ...
+            np.testing.assert_allclose(have, want, rtol=2e-3, atol=1e-6)  # ... to this
+            have_norm = np.sqrt(np.sum(have.reshape(N, -1) ** 2, axis=1))
+            np.testing.assert_allclose(have_norm, clip, rtol=2e-3)
 
 
 def test_robots_learn_independently(learners):

@@ -51,7 +51,20 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
         assert danger["mean"] == pytest.approx(sum(danger["per_seed"]) / 2)
         assert "paper" in danger and "paper" in record["success_rate"]
     assert set(result["headlines"]) == set(tables.PAPER_HEADLINES)
-    assert result["claims"]["danger_lower_vs_plain"]["of"] == 9
+    # The claims follow from the records: CCR's mean danger below the other variant's,
+    # counted cell by cell.
+    by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in records}
+    for base in ("plain", "pessimistic"):
+        claim = result["claims"][f"danger_lower_vs_{base}"]
+        lower = [
+            by_key[(s, a, "ccr")]["danger_frequency"]["mean"]
+            < by_key[(s, a, base)]["danger_frequency"]["mean"]
+            for s in tables.SCENARIOS for a in tables.ALGOS
+        ]
+        assert claim["of"] == len(lower) == 9
+        assert claim["cells"] == sum(lower)
+        assert [d["lower"] for d in claim["detail"]] == lower
+        assert 0 <= claim["significant"] <= claim["cells"]
     for figure in ("curves_hidden_obstacle_maddpg.png", "trajectories_hidden_obstacle_maddpg.png",
                    "distance_hidden_obstacle_maddpg.png"):
         assert (out / figure).stat().st_size > 0
@@ -71,8 +84,11 @@ def test_the_paper_headlines_follow_from_its_tables(tables):
         ("danger_reduction_vs_pessimistic", "danger_frequency", "ccr", "pessimistic", -1),
         ("success_change_vs_pessimistic", "success_rate", "ccr", "pessimistic", 1),
     ):
-        value = tables.headline(cells, metric, new, base, sign, resamples=2)["mean"]
-        assert value == pytest.approx(tables.PAPER_HEADLINES[key], abs=6e-4), key
+        result = tables.headline(cells, metric, new, base, sign, resamples=2000)
+        assert result["mean"] == pytest.approx(tables.PAPER_HEADLINES[key], abs=6e-4), key
+        # One value per cell: every resample is the data itself, so the interval is a point.
+        assert result["ci_low"] == pytest.approx(result["mean"], rel=1e-12)
+        assert result["ci_high"] == pytest.approx(result["mean"], rel=1e-12)
 
 
 def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run, capsys):

@@ -11,6 +11,7 @@ import pytest
 
 from ccrjax.env import CCREnv
 from ccrjax.learners.ddpg import DDPGConfig
+from ccrjax.rollout import episode_metrics, run_episode
 from ccrjax.training import NonFiniteTraining, TrainConfig, make_train
 from ccrjax.transforms import Pessimistic, Plain
 
@@ -18,11 +19,11 @@ TINY = TrainConfig(
     algo="maddpg",
     scenario="hidden_obstacle",
     num_envs=2,
-    episode_length=10,
-    total_env_steps=200,
-    eval_every=100,
+    episode_length=20,  # long enough that robots reach the obstacle (danger to count)
+    total_env_steps=400,
+    eval_every=200,
     eval_episodes=4,
-    learning_starts=40,
+    learning_starts=80,
     ddpg=DDPGConfig(batch_size=32, actor_hidden=(16,), critic_hidden=(16,), update_every=10),
 )
 
@@ -96,18 +97,69 @@ def test_vmapped_seeds_equal_separate_runs(tiny_program, separate_runs):
 
 
 def test_training_counts_steps_updates_and_dangerous_steps(tiny_program, separate_runs):
-    state, history = separate_runs[1][0]
+    keys, runs = separate_runs
+    state, history = runs[1]
     assert int(state.env_steps) == TINY.num_iterations * TINY.steps_per_iteration
     assert int(state.iteration) == TINY.num_iterations
-    # Updates start once 40 transitions are stored: from the second iteration on.
+    # Updates start once 80 transitions are stored: from the second iteration on.
     assert int(state.updates) == (TINY.num_iterations - 1) * TINY.updates_per_iteration
-    danger = np.asarray(history["cumulative_danger_steps"])
-    assert np.all(np.diff(danger) >= 0)
     assert len(history["return"]) == tiny_program.num_evaluations + 1
     np.testing.assert_array_equal(
-        history["env_steps"], np.arange(len(danger)) * TINY.eval_every
+        history["env_steps"], np.arange(len(history["return"])) * TINY.eval_every
     )
     tiny_program.raise_if_nonfinite(state)
+
+    # The dangerous robot-steps, counted again from each iteration's training episode:
+    # the same episode (same key, same exploring policy) run on its own.
+    program = tiny_program
+
+    @jax.jit
+    def iteration_and_its_episode(state):
+        _, rollout_key, _ = jax.random.split(state.key, 3)
+
+        def explore(obs, key):
+            return program.learner.act(state.learner, obs, key, True)
+
+        _, episode = run_episode(program.env, program.transform, state.transform, explore,
+                                 program.learner.discrete, rollout_key)
+        return program.iteration(state)[0], jnp.sum(episode.danger)
+
+    state = program.init(keys[1])
+    counts, cumulative = [], [0.0]
+    for _ in range(TINY.num_iterations):
+        next_state, danger = iteration_and_its_episode(state)
+        counts.append(float(danger))
+        assert float(next_state.danger_steps) == float(state.danger_steps) + float(danger)
+        cumulative.append(float(next_state.danger_steps))
+        state = next_state
+    assert sum(counts) > 0 and len(set(counts)) > 1, counts  # something to count
+    per_point = np.asarray(cumulative)[:: TINY.iterations_per_eval]
+    np.testing.assert_array_equal(history["cumulative_danger_steps"], per_point)
+
+
+def test_evaluation_runs_the_deterministic_policy(tiny_program):
+    """``evaluate`` is the greedy policy's episode metrics (no exploration noise)."""
+    program = tiny_program
+    state = program.init(jax.random.PRNGKey(3))
+    key = jax.random.PRNGKey(7)
+
+    @jax.jit
+    def evaluated_and_by_hand(state):
+        def metrics(explore):
+            def act(obs, step_key):
+                return program.learner.act(state.learner, obs, step_key, explore)
+
+            _, episode = run_episode(program.eval_env, program.transform, state.transform, act,
+                                     program.learner.discrete, key)
+            return episode_metrics(episode)
+
+        return program.evaluate(state, key), metrics(False), metrics(True)
+
+    evaluated, greedy, noisy = evaluated_and_by_hand(state)
+    for name, value in evaluated.items():
+        np.testing.assert_allclose(value, greedy[name], rtol=1e-6, err_msg=name)
+    # Exploration would show: the noisy policy's numbers differ.
+    assert not np.isclose(float(noisy["return"]), float(greedy["return"]), rtol=1e-4)
 
 
 def test_a_run_that_turns_non_finite_is_stopped_with_its_iteration(tiny_program):

@@ -1,0 +1,196 @@
+"""The commands at a tiny size: ``evaluate`` reproduces the library's numbers, a resumed run
+is exactly the uninterrupted one, ``sweep`` and ``demo`` write sane outputs.
+
+One tiny training configuration (2 seeds, 2 environments of 10 steps, 8-unit networks,
+two chunks of 200 steps) serves the in-process runs; the session's compilation cache
+(``conftest.py``) serves the repeated compilations and the subprocesses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ccrjax import evaluate, train
+from ccrjax.checkpoint import Checkpoints
+from ccrjax.rollout import episode_metrics, run_episode
+from ccrjax.run_folder import EVAL_METRICS, RunFolder, fingerprint, read_metrics
+from ccrjax.stats import mean_ci
+from ccrjax.training import make_train
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = [
+    "--scenario", "hidden_obstacle", "--algo", "maddpg", "--variant", "plain",
+    "--steps", "400", "--num-envs", "2", "--episode-length", "10", "--eval-every", "200",
+    "--eval-episodes", "4", "--learning-starts", "100", "--ddpg-batch-size", "16",
+    "--ddpg-actor-hidden", "8", "--ddpg-critic-hidden", "8", "--ddpg-update-every", "10",
+    "--seeds", "2", "--seed-offset", "7", "--checkpoint-every", "200", "--no-progress",
+]
+
+
+def restore_final(folder: Path):
+    """The run's spec and its latest checkpoint, restored."""
+    spec = train.RunSpec.from_dict(RunFolder(folder).read_config()["run"])
+    program = make_train(spec.train)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in spec.seed_list])
+    abstract = jax.eval_shape(jax.vmap(program.init), keys)
+    checkpoints = Checkpoints(folder / "checkpoints")
+    try:
+        return spec, checkpoints.restore_latest(abstract, fingerprint(spec.to_dict()))
+    finally:
+        checkpoints.close()
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("commands") / "run"
+    assert train.main([*TINY, "--out", str(out)]) == 0
+    return out
+
+
+def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys):
+    """``python -m ccrjax.evaluate``'s per-seed numbers are the greedy policy's episode metrics
+    computed here from the checkpoint, with the command's documented episode keys."""
+    out = tmp_path / "evaluated"
+    out.mkdir()
+    for name in ("config.json", "checkpoints"):
+        source = finished_run / name
+        (os.symlink if source.is_dir() else os.link)(source, out / name)
+    assert evaluate.main([str(out), "--episodes", "6", "--seed", "5", "--no-pictures"]) == 0
+    capsys.readouterr()
+    result = json.loads((out / "evaluation.json").read_text())
+    spec, restored = restore_final(finished_run)
+    assert result["checkpoint_env_steps"] == restored.step == 400
+    program = make_train(dataclasses.replace(spec.train, eval_episodes=6))
+    keys = jax.random.split(jax.random.PRNGKey(5), len(spec.seed_list))
+
+    @jax.jit
+    def greedy_metrics(state, key):
+        def act(obs, step_key):
+            return program.learner.act(state.learner, obs, step_key, False)
+
+        _, episode = run_episode(program.eval_env, program.transform, state.transform, act,
+                                 program.learner.discrete, key)
+        return episode_metrics(episode)
+
+    assert result["seeds"] == spec.seed_list == [7, 8]
+    for k, seed in enumerate(spec.seed_list):
+        state = jax.tree_util.tree_map(lambda x, k=k: x[k], restored.state)
+        key = jax.random.fold_in(keys[k], evaluate.EVALUATION_STREAM)
+        expected = greedy_metrics(state, key)
+        for name in EVAL_METRICS:
+            np.testing.assert_allclose(result["per_seed"][str(seed)][name], expected[name],
+                                       rtol=1e-5, atol=1e-7, err_msg=f"seed {seed} {name}")
+    for name in EVAL_METRICS:
+        values = [result["per_seed"][str(s)][name] for s in spec.seed_list]
+        assert result["mean_ci95"][name] == pytest.approx(mean_ci(values))
+    # Fresh episodes: not the run's own last evaluation (other keys, other episodes).
+    last = [r for r in read_metrics(finished_run / "metrics.csv") if r["env_steps"] == 400]
+    assert [r["return"] for r in last] != [result["per_seed"][str(s)]["return"]
+                                          for s in spec.seed_list]
+
+
+def test_a_stopped_and_resumed_run_is_the_uninterrupted_run(finished_run, tmp_path,
+                                                            monkeypatch, capsys):
+    """Ctrl-C after the first chunk (a real SIGINT to this process), then ``--resume``: the
+    final checkpoint holds exactly the uninterrupted run's state (parameters, optimiser
+    states, replay buffers, keys, counters), and the metrics are the same."""
+    out = tmp_path / "stopped"
+    real_update = train.Progress.update
+    sent = []
+
+    def update_then_interrupt(self, *args):
+        real_update(self, *args)
+        if not sent:
+            sent.append(True)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(train.Progress, "update", update_then_interrupt)
+    assert train.main([*TINY, "--out", str(out)]) == train.INTERRUPTED
+    monkeypatch.setattr(train.Progress, "update", real_update)
+    assert "--resume" in capsys.readouterr().err
+    assert sorted(int(p.name) for p in (out / "checkpoints").iterdir()) == [200]
+    assert train.main(["--out", str(out), "--resume", "--no-progress"]) == 0
+    assert "resuming" in capsys.readouterr().err
+
+    _, resumed = restore_final(out)
+    _, uninterrupted = restore_final(finished_run)
+    assert resumed.step == uninterrupted.step == 400
+    assert int(np.min(resumed.state.updates)) > 0  # the resumed chunk trained
+    paths = jax.tree_util.tree_flatten_with_path(uninterrupted.state)[0]
+    leaves = jax.tree_util.tree_leaves(resumed.state)
+    assert len(paths) == len(leaves)
+    for (path, want), have in zip(paths, leaves, strict=True):
+        np.testing.assert_array_equal(np.asarray(have), np.asarray(want),
+                                      err_msg=jax.tree_util.keystr(path))
+    rows = read_metrics(out / "metrics.csv")
+    expected = read_metrics(finished_run / "metrics.csv")
+    assert len(rows) == len(expected) == 2 * 3
+    for row, want in zip(rows, expected, strict=True):
+        assert {k: v for k, v in row.items() if k != "wall_time_s"} == {
+            k: v for k, v in want.items() if k != "wall_time_s"}
+
+
+def run_command(module: str, *args: str, env) -> subprocess.CompletedProcess:
+    process = subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=300)
+    assert process.returncode == 0, process.stderr
+    return process
+
+
+def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
+    """Two lambdas x two seeds of MADDPG + CCR for two iterations each. With so few steps no
+    update happens (learning starts after a full batch), so lambda, which only reshapes
+    rewards, changes nothing the untrained policies do: each seed's numbers are the same
+    under both lambdas, and differ between seeds."""
+    out = tmp_path / "sweep"
+    run_command("ccrjax.sweep", "--scenario", "strong_wind", "--algo", "maddpg", "--lams", "0",
+                "30", "--seeds", "2", "--steps", "800", "--eval-episodes", "4", "--out",
+                str(out), env=subprocess_env)
+    result = json.loads((out / "sweep.json").read_text())
+    assert [row["lam"] for row in result["rows"]] == [0.0, 30.0]
+    assert result["env_steps"] == 800 and result["eval_episodes"] == 4
+    for row in result["rows"]:
+        assert row["seeds"] == [0, 1]
+        for name in (*EVAL_METRICS, "cumulative_danger_steps"):
+            values = row[name]["per_seed"]
+            assert len(values) == 2 and all(np.isfinite(values))
+            assert row[name]["mean"] == pytest.approx(np.mean(values))
+        for name in ("danger_frequency", "success_rate"):
+            assert all(0.0 <= v <= 1.0 for v in row[name]["per_seed"])
+        assert all(v < 0 for v in row["return"]["per_seed"])
+        assert row["return"]["per_seed"][0] != row["return"]["per_seed"][1]
+    first, second = result["rows"]
+    for name in EVAL_METRICS:
+        assert first[name]["per_seed"] == second[name]["per_seed"], name
+    table = (out / "sweep.md").read_text()
+    assert "| 0 |" in table and "| 30 |" in table
+    assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_demo_command_at_a_tiny_size(tmp_path, subprocess_env):
+    from PIL import Image
+
+    out = tmp_path / "demo"
+    process = run_command("ccrjax.demo", "--out", str(out), "--robots", "2", "--steps", "5",
+                          env=subprocess_env)
+    scenarios = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
+    assert f"wrote {2 * len(scenarios)} pictures" in process.stdout
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        f"{s}.{ext}" for s in scenarios for ext in ("png", "gif"))
+    for scenario in scenarios:
+        with Image.open(out / f"{scenario}.png") as png:
+            assert png.format == "PNG" and min(png.size) > 100
+            assert np.unique(np.asarray(png.convert("L"))).size > 10  # a picture, not a blank
+        with Image.open(out / f"{scenario}.gif") as gif:
+            assert gif.format == "GIF" and gif.n_frames >= 5
