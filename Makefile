@@ -8,7 +8,7 @@ PEER_VENV  := benchmarks/.peer-venv
 PEER_PY    := $(PEER_VENV)/bin/python
 PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train demo test lint bench bench-peers sweep tables mutants clean
+.PHONY: install train demo test test-slow lint bench bench-peers sweep tables mutants clean
 
 install: $(STAMP)
 
@@ -28,8 +28,13 @@ train: install
 demo: install
 	$(PY) -m ccrjax.demo --out runs/demo
 
+# The suite on both cores (one worker per test file), without the pipeline checks marked
+# slow; test-slow runs those (CI runs both).
 test: install
-	$(PY) -m pytest
+	$(PY) -m pytest -n 2 --dist loadfile -m "not slow"
+
+test-slow: install
+	$(PY) -m pytest -m slow
 
 lint: install
 	$(PY) -m ruff check ccrjax tests benchmarks experiments

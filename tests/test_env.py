@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ccrjax.env import CCREnv, WorldState
+from ccrjax.learners.base import Transition
 from ccrjax.rollout import Episode, episode_metrics
 from ccrjax.scenarios import Hazard, Layout
 from ccrjax.scenarios.base import target_positions
@@ -428,8 +429,12 @@ def test_episode_metrics_hand_built():
     ], np.float32)
     hazard_distance = np.arange(12, dtype=np.float32).reshape(3, 2, 2)
     env_reward = -target_distance
+    # What a learner was trained on (a transform's shaped reward, [T, E, N]): not the return.
+    shaped = Transition(obs=None, action=None, reward=jnp.asarray(env_reward.transpose(0, 2, 1)
+                                                                  - 10.0),
+                        next_obs=None, done=None)
     episode = Episode(
-        transitions=None, env_reward=jnp.asarray(env_reward), danger=jnp.asarray(danger),
+        transitions=shaped, env_reward=jnp.asarray(env_reward), danger=jnp.asarray(danger),
         success=jnp.asarray(success), target_distance=jnp.asarray(target_distance),
         hazard_distance=jnp.asarray(hazard_distance), position=jnp.zeros((4, 2, 2, 2)),
         hazard=None, info={},

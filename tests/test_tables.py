@@ -14,6 +14,9 @@ from pathlib import Path
 
 import pytest
 
+# The whole grid's pipeline (18 programs compiled): minutes, so `make test-slow`.
+pytestmark = pytest.mark.slow
+
 SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
 
 

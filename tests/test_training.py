@@ -130,9 +130,16 @@ def test_training_counts_steps_updates_and_dangerous_steps(tiny_program, separat
         next_state, danger = iteration_and_its_episode(state)
         counts.append(float(danger))
         assert float(next_state.danger_steps) == float(state.danger_steps) + float(danger)
+        # Since learning started: episodes collected once the buffer held enough to learn.
+        learning = int(state.buffer.size) >= TINY.learning_starts_transitions
+        assert float(next_state.learning_danger_steps) == (
+            float(state.learning_danger_steps) + (float(danger) if learning else 0.0)
+        )
         cumulative.append(float(next_state.danger_steps))
         state = next_state
     assert sum(counts) > 0 and len(set(counts)) > 1, counts  # something to count
+    assert counts[0] > 0, counts  # the warm-up's episode has danger the second count skips
+    assert float(state.learning_danger_steps) < float(state.danger_steps)
     per_point = np.asarray(cumulative)[:: TINY.iterations_per_eval]
     np.testing.assert_array_equal(history["cumulative_danger_steps"], per_point)
 
