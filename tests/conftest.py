@@ -1,9 +1,16 @@
-"""Shared test settings: one on-disk compilation cache for the whole session.
+"""Shared test settings: one on-disk compilation cache for the whole session, and quick
+compilation.
 
-Several tests compile the same small training program (in this process and in
-subprocesses of ``python -m ccrjax.train``); with a shared cache, the second
-compilation of a program is a disk read. A cached program is the same
+Several tests compile the same small training program (in this process, in the other
+pytest-xdist worker, and in subprocesses of ``python -m ccrjax.train``); with a shared
+cache, the second compilation of a program is a disk read. A cached program is the same
 executable, so no result depends on whether it came from the cache.
+
+The tests' programs are small and run for moments, so compiling them is most of the
+suite's time: XLA's CPU backend compiles them at its lowest optimisation level
+(``--xla_backend_optimization_level=0``, about half the compile time). Every comparison
+in the suite is between programs compiled alike or against tolerances, and
+``tests/test_world.py`` still matches the maintained MPE to 1e-5.
 """
 
 from __future__ import annotations
@@ -14,7 +21,17 @@ import tempfile
 import jax
 import pytest
 
-_CACHE = tempfile.mkdtemp(prefix="ccrjax-test-xla-")
+_FLAG = "--xla_backend_optimization_level=0"
+if _FLAG not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+
+# One cache for the whole run: pytest-xdist's workers share the run's id.
+_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+if _RUN:
+    _CACHE = os.path.join(tempfile.gettempdir(), f"ccrjax-test-xla-{_RUN}")
+    os.makedirs(_CACHE, exist_ok=True)
+else:
+    _CACHE = tempfile.mkdtemp(prefix="ccrjax-test-xla-")
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 
 
