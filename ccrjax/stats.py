@@ -50,3 +50,31 @@ def mean_ci_along(values: np.ndarray, axis: int = 0, level: float = 0.95):
         return mean, np.zeros_like(mean)
     half = t_quantile(n, level) * np.std(array, axis=axis, ddof=1) / math.sqrt(n)
     return mean, half
+
+
+def plateau(curves: np.ndarray, fraction: float = 0.2, level: float = 0.95) -> dict:
+    """Whether learning curves have levelled off by their end.
+
+    ``curves``: ``[seeds, points]``, one evaluated metric (the return) per evaluation
+    point. Each seed's curve is averaged over its last ``fraction`` of points and over
+    the ``fraction`` before; the curves have plateaued if the mean over seeds of the
+    last window lies within the 95% Student-t interval (over seeds) of the window
+    before (a curve still rising ends above it). Returns ``{"plateaued", "last",
+    "previous", "ci_low", "ci_high", "window"}``, ``window`` the points per window (at
+    least one); needs at least 2 seeds and two windows of points.
+    """
+    array = np.asarray(curves, dtype=np.float64)
+    if array.ndim != 2 or array.shape[0] < 2:
+        raise ValueError(f"plateau needs curves [seeds >= 2, points], got shape {array.shape}")
+    if not 0.0 < fraction <= 0.5:
+        raise ValueError(f"plateau fraction must be in (0, 0.5], got {fraction!r}")
+    window = max(1, int(round(fraction * array.shape[1])))
+    if 2 * window > array.shape[1]:
+        raise ValueError(f"plateau needs at least {2 * window} evaluation points, "
+                         f"got {array.shape[1]}")
+    last = array[:, -window:].mean(axis=1)
+    previous = mean_ci(array[:, -2 * window:-window].mean(axis=1), level)
+    value = float(last.mean())
+    return {"plateaued": bool(previous["ci_low"] <= value <= previous["ci_high"]),
+            "last": value, "previous": previous["mean"], "ci_low": previous["ci_low"],
+            "ci_high": previous["ci_high"], "window": window}

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from ccrjax.stats import mean_ci, mean_ci_along
+from ccrjax.stats import mean_ci, mean_ci_along, plateau
 
 TABLE_RTOL = 2e-4
 SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
@@ -133,3 +133,23 @@ def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation(tab
     centre = (result["ci_high"] + result["ci_low"]) / 2
     assert half == pytest.approx(1.96 * sd, rel=0.1)
     assert centre == pytest.approx(0.2, abs=0.2 * sd)
+
+
+def test_plateau_tells_a_rising_curve_from_a_flat_one():
+    steps = np.arange(20, dtype=np.float64)
+    noise = np.array([[0.1, -0.1, 0.05, -0.05] * 5, [-0.1, 0.1, -0.05, 0.05] * 5,
+                      [0.05, 0.05, -0.1, 0.0] * 5])
+    flat = -30.0 + noise
+    rising = -60.0 + 1.5 * steps + noise
+    assert plateau(flat)["plateaued"]
+    result = plateau(rising)
+    assert not result["plateaued"]
+    # Windows of 4 points (20% of 20): the last is 16..19, the one before 12..15.
+    assert result["window"] == 4
+    assert result["last"] == pytest.approx(np.mean(rising[:, 16:]))
+    assert result["previous"] == pytest.approx(np.mean(rising[:, 12:16]))
+    assert result["last"] > result["ci_high"]
+    with pytest.raises(ValueError, match="seeds"):
+        plateau(flat[:1])
+    with pytest.raises(ValueError, match="points"):
+        plateau(flat[:, :1])
