@@ -274,9 +274,13 @@ class CCREnv(Env):
         position, velocity = physics_step(
             world.position, world.velocity, self.radius, force, self.physics
         )
+        # Materialised once: otherwise XLA fuses the physics into each use the constraint
+        # makes of it, recomputing the contact forces several times (a 4x slower step).
+        position, velocity = jax.lax.optimization_barrier((position, velocity))
         position, velocity = self.scenario.constrain(
             world.hazard, world.position, position, velocity, self.radius
         )
+        position, velocity = jax.lax.optimization_barrier((position, velocity))
         return world.replace(position=position, velocity=velocity, time=world.time + 1)
 
     def _state(self, world: WorldState, reward: jax.Array, done: jax.Array) -> State:

@@ -247,6 +247,9 @@ def rectangle_distance(position: jax.Array, centre: jax.Array, half_extent: jax.
     return jnp.where(outside > 0.0, outside, -jnp.minimum(half_x - rel_x, half_y - rel_y))
 
 
+_FAR = 1e30  # "never" for the slab times of rectangle_stop
+
+
 def rectangle_stop(
     previous: jax.Array,
     position: jax.Array,
@@ -294,11 +297,12 @@ def rectangle_stop(
         half = half - 1e-6 * (1.0 + jnp.abs(centre[axis][None]) + half)
         step = position[:, axis] - previous[:, axis]
         moving = step != 0.0
-        safe = jnp.where(moving, step, 1.0)
-        t_a = (-half - start) / safe
-        t_b = (half - start) / safe
+        inverse = 1.0 / jnp.where(moving, step, 1.0)
+        t_a = (-half - start) * inverse
+        t_b = (half - start) * inverse
         in_slab = jnp.abs(start) < half
-        outside = jnp.where(in_slab, -jnp.inf, jnp.inf)  # never entered, or always in
+        # Large finite stand-ins for +-infinity (not moving: never entered, or always in).
+        outside = jnp.where(in_slab, -_FAR, _FAR)
         lows.append(jnp.where(moving, jnp.minimum(t_a, t_b), outside))
         highs.append(jnp.where(moving, jnp.maximum(t_a, t_b), -outside))
         sides.append(jnp.where(moving, -jnp.sign(step), jnp.where(start >= 0.0, 1.0, -1.0)))
