@@ -154,19 +154,20 @@ def stand_still(env: CCREnv) -> Controller:
     return act
 
 
-def _away_from_midline(world: WorldState, env: CCREnv) -> jax.Array:
-    return jnp.where(world.position[:, 1] >= env.layout.goal[1], 1.0, -1.0)
+def _fixed_x_away_in_y(env: CCREnv, along: float) -> Controller:
+    """Action ``along`` on x, full action away from the mid-line on y."""
+
+    def act(world: WorldState, key: jax.Array) -> jax.Array:
+        del key
+        away = jnp.where(world.position[:, 1] >= env.layout.goal[1], 1.0, -1.0)
+        return jnp.stack([jnp.full_like(away, along), away], axis=1)
+
+    return act
 
 
 def flee_sideways(env: CCREnv) -> Controller:
     """Gaming: full speed away from the mid-line, never towards the target."""
-
-    def act(world: WorldState, key: jax.Array) -> jax.Array:
-        del key
-        away = _away_from_midline(world, env)
-        return jnp.stack([jnp.zeros_like(away), away], axis=1)
-
-    return act
+    return _fixed_x_away_in_y(env, 0.0)
 
 
 def overshoot(env: CCREnv) -> Controller:
@@ -183,13 +184,7 @@ def overshoot(env: CCREnv) -> Controller:
 
 def dash_away(env: CCREnv) -> Controller:
     """Gaming: full speed along the way while steering away from the mid-line."""
-
-    def act(world: WorldState, key: jax.Array) -> jax.Array:
-        del key
-        away = _away_from_midline(world, env)
-        return jnp.stack([jnp.ones_like(away), away], axis=1)
-
-    return act
+    return _fixed_x_away_in_y(env, 1.0)
 
 
 CONTROLLERS: dict[str, Callable[[CCREnv], Controller]] = {
