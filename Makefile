@@ -8,7 +8,7 @@ PEER_VENV  := benchmarks/.peer-venv
 PEER_PY    := $(PEER_VENV)/bin/python
 PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train demo test test-slow lint bench bench-peers sweep tables mutants clean
+.PHONY: install train demo test test-slow lint bench bench-peers sweep penalty-sweep tables mutants clean
 
 install: $(STAMP)
 
@@ -43,12 +43,19 @@ bench: install
 	$(PY) benchmarks/env_throughput.py
 	$(PY) benchmarks/train_throughput.py --variants plain ccr
 
-# CCR's lambda searched in one program (see python -m ccrjax.sweep --help for options).
+# The searches of docs/protocol.md: CCR's lambda and the pessimistic penalty, alike, one
+# vmapped program per scenario and learner, into runs/search/<variant> unless SWEEP_ARGS
+# names another --out (the committed ones: --out experiments/results/search/<variant> --force).
+# One scenario and learner alone: python -m ccrjax.sweep --help.
 SWEEP_ARGS ?=
 sweep: install
-	$(PY) -m ccrjax.sweep $(SWEEP_ARGS)
+	$(PY) experiments/search.py --variant ccr $(SWEEP_ARGS)
 
-# The paper's Tables I and II with confidence intervals: experiments/results/.
+penalty-sweep: install
+	$(PY) experiments/search.py --variant pessimistic $(SWEEP_ARGS)
+
+# The paper's Tables I and II under the protocol, into runs/tables unless TABLES_ARGS
+# names another --out; resumable (python experiments/tables.py --help gives its cost).
 TABLES_ARGS ?=
 tables: install
 	$(PY) experiments/tables.py $(TABLES_ARGS)

@@ -33,7 +33,9 @@ def arrival_analysis(episodes: dict[str, np.ndarray], reach: float) -> dict[str,
 
     ``episodes``: recorded evaluation episodes (:attr:`ccrjax.sweep.GridRuns.episodes`),
     leading run axis ``G``.
-    Returns ``closest`` and ``centre_distance``, ``[G, E, N]`` ordered by arrival rank.
+    Returns ``closest`` and ``centre_distance``, ``[G, E, N]`` ordered by arrival rank,
+    and, where the episodes record ``success`` (``[G, N, E]``, in the target area at the
+    end), ``succeeded`` in the same order.
     """
     position = episodes["position"]  # [G, T + 1, N, 2, E]
     centre = episodes["hazard_centre"][:, None, None]  # [G, 1, 1, 2, E]
@@ -49,4 +51,19 @@ def arrival_analysis(episodes: dict[str, np.ndarray], reach: float) -> dict[str,
     rank = np.argsort(order_key, axis=1, kind="stable")  # [G, N(rank), E]
     closest = np.take_along_axis(closest, rank, axis=1).transpose(0, 2, 1)
     centre_distance = np.take_along_axis(centre_distance, rank, axis=1).transpose(0, 2, 1)
-    return {"closest": closest, "centre_distance": centre_distance}
+    result = {"closest": closest, "centre_distance": centre_distance}
+    if "success" in episodes:
+        success = np.asarray(episodes["success"], bool)
+        result["succeeded"] = np.take_along_axis(success, rank, axis=1).transpose(0, 2, 1)
+    return result
+
+
+def followers_closest(analysis: dict[str, np.ndarray]) -> np.ndarray:
+    """Per run ``[G]``: the mean closest approach to the obstacle's surface of the robots
+    that arrive after the first *and* end in the target area (a robot that kept away by
+    abandoning the task does not count); NaN for a run with no such robot."""
+    closest = analysis["closest"][..., 1:]  # [G, E, N - 1]
+    counted = analysis["succeeded"][..., 1:]
+    total = np.where(counted, closest, 0.0).sum(axis=(1, 2))
+    count = counted.sum(axis=(1, 2))
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)

@@ -22,6 +22,7 @@ import csv
 import hashlib
 import io
 import json
+import math
 import os
 import platform
 import subprocess
@@ -52,6 +53,18 @@ METRIC_TITLES = {
     "hazard_distance": "average distance to the hazard centre",
     "cumulative_danger_steps": "cumulative dangerous robot-steps in training",
     "learning_danger_steps": "dangerous robot-steps since learning started",
+}
+
+# The range of every metric, to which confidence intervals are clipped (the return is a
+# sum of negative distances, never above 0).
+METRIC_RANGES: dict[str, tuple[float, float]] = {
+    "return": (-math.inf, 0.0),
+    "success_rate": (0.0, 1.0),
+    "target_distance": (0.0, math.inf),
+    "danger_frequency": (0.0, 1.0),
+    "hazard_distance": (0.0, math.inf),
+    "cumulative_danger_steps": (0.0, math.inf),
+    "learning_danger_steps": (0.0, math.inf),
 }
 
 
@@ -203,7 +216,8 @@ class RunFolder:
             "env_steps_per_seed": final_rows[0]["env_steps"],
             "seeds": [row["seed"] for row in final_rows],
             "per_seed": {str(row["seed"]): {m: row[m] for m in metrics} for row in final_rows},
-            "mean_ci95": {m: mean_ci([row[m] for row in final_rows]) for m in metrics},
+            "mean_ci95": {m: mean_ci([row[m] for row in final_rows], bounds=METRIC_RANGES[m])
+                          for m in metrics},
             **extra,
         }
         write_atomic(self.path / "summary.json", json.dumps(summary, indent=2) + "\n")

@@ -1,19 +1,23 @@
-"""Grids of training runs in one program, and ``python -m ccrjax.sweep``, the lambda search.
+"""Grids of training runs in one program, and ``python -m ccrjax.sweep``, a search of one pair.
 
 :func:`train_grid` trains every entry of a grid (a seed, and per-run transform
 numbers such as CCR's lambda or the pessimistic penalty) of one configuration as
 one vmapped program, sharded over every device (:mod:`ccrjax.grid`). It returns
 each run's evaluation history and its final policy (learner and transform
 state; the replay buffers stay inside the program). The experiments build on it:
-``experiments/tables.py``, ``experiments/behaviour.py``, and this module's command::
+``experiments/search.py`` (the searches of every scenario and learner, ``make sweep``
+and ``make penalty-sweep``), ``experiments/tables.py``, ``experiments/behaviour.py``,
+and this module's command, one scenario and learner::
 
-    python -m ccrjax.sweep --scenario hidden_obstacle --algo maddpg \\
-        --lams 0 1 3 10 30 100 --seeds 5 --out runs/sweep
+    python -m ccrjax.sweep --variant ccr --scenario hidden_obstacle --algo maddpg \\
+        --values 0 1 3 10 30 100 --seeds 3 --out runs/sweep
+    python -m ccrjax.sweep --variant pessimistic --values 0 0.1 1 10 --out runs/penalty
 
-which trains ``len(lams) x seeds`` CCR runs at once and writes ``sweep.md`` (a table
-of the four metrics per lambda, mean and 95% interval over seeds), ``sweep.json``
-(per-seed values) and ``tradeoff.png`` (dangerous-behaviour frequency against
-success rate, one point per lambda with its intervals).
+which trains ``len(values) x seeds`` runs at once (0 is the plain learner: CCR's
+reward unchanged, or no penalty) and writes ``sweep.md`` (a table of the metrics per
+value, mean and 95% interval over seeds), ``sweep.json`` (per-seed values) and
+``tradeoff.png`` (dangerous-behaviour frequency against success rate, one point per
+value with its intervals).
 """
 
 from __future__ import annotations
@@ -33,13 +37,26 @@ import numpy as np
 from ccrjax import cli
 from ccrjax.cli import UsageError
 from ccrjax.grid import GridProgram, stack_keys
+from ccrjax.plots import draw_search_tradeoff
 from ccrjax.rollout import run_episode
-from ccrjax.run_folder import POINT_METRICS, git_commit, write_atomic
+from ccrjax.run_folder import METRIC_RANGES, POINT_METRICS, git_commit, write_atomic
 from ccrjax.stats import mean_ci
-from ccrjax.training import TrainConfig, make_env, make_train
+from ccrjax.training import (
+    ALGOS,
+    LEARNING_STARTS,
+    NonFiniteTraining,
+    TrainConfig,
+    make_env,
+    make_train,
+)
 
 PROG = "python -m ccrjax.sweep"
-DEFAULT_LAMS = (0.0, 1.0, 3.0, 10.0, 30.0, 100.0)
+# The run parameter each searchable variant takes, and the values searched by default
+# (the protocol's, docs/protocol.md).
+SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty"}
+DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
+                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)}
+SCENARIO_NAMES = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 
 
 @dataclasses.dataclass
@@ -126,6 +143,7 @@ class GridTraining:
                 out["episodes"] = {
                     "position": episode.position,
                     "danger": episode.danger,
+                    "success": episode.success[-1],  # [N, E]: in the target area at the end
                     "hazard_centre": episode.hazard.centre,
                     "hazard_half_extent": episode.hazard.half_extent,
                     **episode.info,
@@ -151,8 +169,6 @@ class GridTraining:
         run_s = time.perf_counter() - start
         nonfinite = out["nonfinite"]
         if np.any(nonfinite >= 0):
-            from ccrjax.training import NonFiniteTraining
-
             bad = int(np.flatnonzero(nonfinite >= 0)[0])
             raise NonFiniteTraining(f"run {bad} (seed {self.seeds[bad]}) became non-finite at "
                                     f"iteration {int(nonfinite[bad])}")
@@ -181,29 +197,62 @@ def train_grid(
     return training.run()
 
 
-def summarise(values: np.ndarray) -> dict[str, Any]:
-    """Per-seed values with their mean and 95% interval."""
-    return {"per_seed": [float(v) for v in values], **mean_ci(values)}
+def summarise(values: np.ndarray, metric: str) -> dict[str, Any]:
+    """Per-seed values of ``metric`` with their mean and 95% interval (within its range)."""
+    return {"per_seed": [float(v) for v in values],
+            **mean_ci(values, bounds=METRIC_RANGES[metric])}
+
+
+def search_grid(config: TrainConfig, values: Sequence[float], seeds: Sequence[int]
+                ) -> tuple[str, list[int], list[float]]:
+    """The grid of a search of ``config.variant``'s run parameter (CCR's ``lam``, the
+    pessimistic ``penalty``): every value with every seed, values outer."""
+    name = SEARCHED_PARAMETER.get(config.variant)
+    if name is None:
+        raise ValueError(f"variant must be one of {sorted(SEARCHED_PARAMETER)} to search, "
+                         f"got {config.variant!r}")
+    grid_seeds = [int(s) for _ in values for s in seeds]
+    grid_values = [float(v) for v in values for _ in seeds]
+    return name, grid_seeds, grid_values
+
+
+def search_rows(runs: GridRuns, values: Sequence[float], grid_values: Sequence[float],
+                seeds: Sequence[int]) -> list[dict[str, Any]]:
+    """One row per value: the per-seed final metrics with their means and intervals."""
+    final = runs.final
+    rows = []
+    for value in values:
+        mask = np.asarray(grid_values) == float(value)
+        rows.append({"value": float(value), "seeds": list(seeds),
+                     **{m: summarise(final[m][mask], m) for m in POINT_METRICS}})
+    return rows
 
 
 # ---------------------------------------------------------------------------- the command
 def build_parser() -> argparse.ArgumentParser:
-    parser = cli.Parser(prog=PROG, description="Search CCR's lambda: every lambda x seed "
-                        "trained at once, then a table and the safety-efficiency trade-off.")
-    parser.add_argument("--scenario", choices=("turbulence", "strong_wind", "hidden_obstacle",
-                                               "nominal"), default="hidden_obstacle",
+    parser = cli.Parser(prog=PROG, description="Search the pessimistic penalty or CCR's lambda "
+                        "for one scenario and learner: every value x seed trained at once, then "
+                        "a table and the safety-efficiency trade-off.")
+    parser.add_argument("--variant", choices=sorted(SEARCHED_PARAMETER), default="ccr",
+                        help="what to search: ccr (lambda) or pessimistic (penalty) "
+                        "(default: %(default)s)")
+    parser.add_argument("--scenario", choices=SCENARIO_NAMES, default="hidden_obstacle",
                         help="scenario (default: %(default)s)")
-    parser.add_argument("--algo", choices=("iddpg", "maddpg", "maac"), default="maddpg",
+    parser.add_argument("--algo", choices=ALGOS, default="maddpg",
                         help="learner (default: %(default)s)")
-    parser.add_argument("--lams", type=cli.non_negative_float, nargs="+",
-                        default=list(DEFAULT_LAMS),
-                        help="lambda values (default: 0 1 3 10 30 100)")
-    parser.add_argument("--seeds", type=cli.int_in(1, 1024), default=5,
-                        help="seeds per lambda (default: %(default)s)")
-    parser.add_argument("--seed-offset", type=cli.seed_int, default=0,
-                        help="first seed (default: %(default)s)")
+    parser.add_argument("--values", type=cli.non_negative_float, nargs="+", default=None,
+                        help="values of lambda or of the penalty; 0 is the plain learner "
+                        "(default: 0 and the protocol's six values, docs/protocol.md)")
+    parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
+                        help="seeds per value, at least 2 for an interval (default: %(default)s)")
+    parser.add_argument("--seed-offset", type=cli.seed_int, default=100,
+                        help="first seed (default: %(default)s, the selection seeds: disjoint "
+                        "from the tables' 0-9)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run (default: the learner's default budget)")
+    parser.add_argument("--learning-starts", type=cli.int_in(0), default=LEARNING_STARTS,
+                        help="transitions per seed before the first update "
+                        "(default: %(default)s)")
     parser.add_argument("--eval-episodes", type=cli.int_in(1, 65536), default=128,
                         help="episodes per evaluation (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("runs/sweep"),
@@ -212,29 +261,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
-    config = TrainConfig(algo=args.algo, scenario=args.scenario, variant="ccr",
-                         total_env_steps=args.steps, eval_episodes=args.eval_episodes)
+    config = TrainConfig(algo=args.algo, scenario=args.scenario, variant=args.variant,
+                         total_env_steps=args.steps, eval_episodes=args.eval_episodes,
+                         learning_starts=args.learning_starts)
     config = dataclasses.replace(config, eval_every=config.total_env_steps // 10 or 1)
-    lams = [float(v) for v in args.lams]
+    values = [0.0, *DEFAULT_VALUES[args.variant]] if args.values is None else args.values
+    values = sorted({float(v) for v in values})
     seeds = [args.seed_offset + k for k in range(args.seeds)]
-    grid_seeds = [s for _ in lams for s in seeds]
-    grid_lams = [lam for lam in lams for _ in seeds]
-    print(f"{PROG}: {args.algo} + CCR on {args.scenario}: {len(lams)} lambda x {len(seeds)} "
-          f"seeds = {len(grid_seeds)} runs of {config.total_env_steps:,} steps, one program",
-          file=sys.stderr, flush=True)
-    runs = train_grid(config, grid_seeds, {"lam": grid_lams},
+    name, grid_seeds, grid_values = search_grid(config, values, seeds)
+    print(f"{PROG}: {args.algo} + {args.variant} on {args.scenario}: {len(values)} {name} x "
+          f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.total_env_steps:,} steps, "
+          "one program", file=sys.stderr, flush=True)
+    runs = train_grid(config, grid_seeds, {name: grid_values},
                       log=lambda text: print(text, file=sys.stderr, flush=True))
-    final = runs.final
-    rows = []
-    for lam in lams:
-        mask = np.asarray(grid_lams) == lam
-        rows.append({"lam": lam, "seeds": seeds,
-                     **{m: summarise(final[m][mask]) for m in POINT_METRICS}})
     result = {
+        "variant": args.variant, "parameter": name,
         "scenario": args.scenario, "algo": args.algo, "env_steps": config.total_env_steps,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
-        "command": " ".join([PROG, *sys.argv[1:]]), "commit": git_commit(), "rows": rows,
+        "command": " ".join([PROG, *sys.argv[1:]]), "commit": git_commit(),
+        "rows": search_rows(runs, values, grid_values, seeds),
     }
     args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "sweep.json", json.dumps(result, indent=2) + "\n")
@@ -252,19 +298,21 @@ def _cell(stats: dict[str, Any], percent: bool) -> str:
 
 
 def sweep_table(result: dict[str, Any]) -> str:
+    name = result["parameter"]
     lines = [
-        f"# Lambda sweep: {result['algo']} + CCR on {result['scenario']}",
+        f"# Search of {name}: {result['algo']} + {result['variant']} on {result['scenario']}",
         "",
         f"{result['env_steps']:,} environment steps per run, {len(result['rows'][0]['seeds'])} "
-        f"seeds per lambda, {result['eval_episodes']} evaluation episodes; mean ± 95% CI "
-        "(Student t) over seeds. Command: `" + result["command"] + "`.",
+        f"seeds per value, {result['eval_episodes']} evaluation episodes; mean ± half-width "
+        "of the 95% CI (Student t) over seeds; 0 is the plain learner. Command: `"
+        + result["command"] + "`.",
         "",
-        "| lambda | danger frequency | success rate | return | distance to hazard |",
+        f"| {name} | danger frequency | success rate | return | distance to hazard |",
         "|---|---|---|---|---|",
     ]
     for row in result["rows"]:
         lines.append(
-            f"| {row['lam']:g} | {_cell(row['danger_frequency'], True)} | "
+            f"| {row['value']:g} | {_cell(row['danger_frequency'], True)} | "
             f"{_cell(row['success_rate'], True)} | {_cell(row['return'], False)} | "
             f"{_cell(row['hazard_distance'], False)} |"
         )
@@ -272,29 +320,9 @@ def sweep_table(result: dict[str, Any]) -> str:
 
 
 def draw_tradeoff(result: dict[str, Any], path: Path) -> None:
-    """Danger frequency against success rate, one point per lambda with 95% intervals."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.6, 4.4), dpi=130)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    for row in result["rows"]:
-        success, danger = row["success_rate"], row["danger_frequency"]
-        ax.errorbar(success["mean"], danger["mean"],
-                    xerr=success["half_width"] or 0.0, yerr=danger["half_width"] or 0.0,
-                    marker="o", capsize=3, linewidth=1)
-        ax.annotate(f"λ={row['lam']:g}", (success["mean"], danger["mean"]),
-                    textcoords="offset points", xytext=(6, 6), fontsize=8)
-    ax.set_xlabel("success rate (higher is better)")
-    ax.set_ylabel("dangerous-behaviour frequency (lower is better)")
-    ax.set_title(f"{result['algo']} + CCR, {result['scenario']}: safety vs efficiency",
-                 fontsize=10)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    temporary = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(temporary)
-    temporary.replace(path)
+    """Danger frequency against success rate, one point per value with 95% intervals."""
+    title = f"{result['algo']} + {result['variant']}, {result['scenario']}: safety vs efficiency"
+    draw_search_tradeoff({title: result["rows"]}, result["parameter"], path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

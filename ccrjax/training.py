@@ -45,6 +45,9 @@ from ccrjax.transforms import Pessimistic, Plain, Transform
 ALGOS = ("iddpg", "maddpg", "maac")
 # Default environment steps per seed: what each learner needs to solve `nominal` (success
 # >= 90%, experiments/sanity.py). MAAC makes 4 heavier updates per 100 steps, DDPG one.
+# Learning starts after this many transitions per seed, whatever the learner and episode
+# length: the original MADDPG's 1024 x 25 (its batch size times its episode length).
+LEARNING_STARTS = 25_600
 DEFAULT_BUDGET = {"iddpg": 400_000, "maddpg": 400_000, "maac": 200_000}
 VARIANTS = ("plain", "pessimistic", "ccr")
 
@@ -76,7 +79,7 @@ class TrainConfig:
     total_env_steps: int | None = None  # None: DEFAULT_BUDGET[algo]
     eval_every: int = 20_000  # environment steps between evaluations
     eval_episodes: int = 64
-    learning_starts: int | None = None  # default: batch_size * episode_length transitions
+    learning_starts: int = LEARNING_STARTS  # transitions per seed before the first update
     scenario_params: dict[str, Any] = dataclasses.field(default_factory=dict)
     ddpg: DDPGConfig = DDPGConfig()
     maac: Any = None  # MAACConfig; None = its defaults
@@ -92,14 +95,13 @@ class TrainConfig:
             object.__setattr__(self, "total_env_steps", DEFAULT_BUDGET[self.algo])
         for name in ("num_envs", "total_env_steps", "eval_every", "eval_episodes"):
             check_positive_int("TrainConfig", name, getattr(self, name))
-        if self.learning_starts is not None:
-            if isinstance(self.learning_starts, bool) or not isinstance(
-                self.learning_starts, int
-            ) or self.learning_starts < 0:
-                raise ValueError(
-                    f"TrainConfig.learning_starts must be None or an integer >= 0, "
-                    f"got {self.learning_starts!r}"
-                )
+        if isinstance(self.learning_starts, bool) or not isinstance(
+            self.learning_starts, int
+        ) or self.learning_starts < 0:
+            raise ValueError(
+                f"TrainConfig.learning_starts must be an integer >= 0, "
+                f"got {self.learning_starts!r}"
+            )
         if self.maac is None and self.algo == "maac":
             object.__setattr__(self, "maac", _default_maac_config())
         Pessimistic(penalty=self.penalty)  # validates the penalty whatever the variant
@@ -108,6 +110,13 @@ class TrainConfig:
         # Building the pieces validates the rest (env sizes, penalty, learner fields).
         make_transform(self)
         make_env(self, self.num_envs)
+        if self.total_env_steps < self.min_total_env_steps:
+            raise ValueError(
+                f"total_env_steps (--steps) {self.total_env_steps:,} ends before learning "
+                f"starts: at least {self.min_total_env_steps:,} environment steps are needed "
+                f"(learning_starts {self.learning_starts:,} transitions, collected "
+                f"{self.steps_per_iteration:,} per iteration)"
+            )
 
     @property
     def learner_config(self) -> Any:
@@ -147,9 +156,14 @@ class TrainConfig:
 
     @property
     def learning_starts_transitions(self) -> int:
-        if self.learning_starts is not None:
-            return self.learning_starts
-        return self.learner_config.batch_size * self.episode_length
+        return self.learning_starts
+
+    @property
+    def min_total_env_steps(self) -> int:
+        """The smallest budget that reaches the first learning iteration: the first whole
+        iteration after which the buffer holds ``learning_starts`` transitions."""
+        first = max(1, math.ceil(self.learning_starts / self.steps_per_iteration))
+        return first * self.steps_per_iteration
 
 
 def _nested_config_types() -> dict[str, type]:

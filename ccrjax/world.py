@@ -1,7 +1,7 @@
 """Particle physics of the maintained Multi-Agent Particle Environment (MPE), batched.
 
 Everything here is a pure function of arrays, faithful to the maintained MPE
-(``mpe2``, formerly ``pettingzoo.mpe``; ``facts.md`` section 1):
+(``mpe2``, formerly ``pettingzoo.mpe``; ``docs/references.md`` section 1):
 
 * constants: ``dt = 0.1``, ``damping = 0.25``, ``contact_force = 100``,
   ``contact_margin = 1e-3``, mass 1, action sensitivity 5;

@@ -27,14 +27,16 @@ from typing import Any
 
 import jax
 import numpy as np
+import protocol
 
+from ccrjax import cli
 from ccrjax.run_folder import git_commit, write_atomic
 from ccrjax.stats import plateau
 from ccrjax.sweep import train_grid
 from ccrjax.training import ALGOS, TrainConfig
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
-SEED_OFFSET = 200
+SEED_OFFSET = protocol.BUDGET_SEED_OFFSET
 
 
 def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
@@ -58,8 +60,8 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python experiments/budgets.py",
-                                     description=__doc__.split("\n\n")[0])
+    parser = cli.Parser(prog="python experiments/budgets.py",
+                        description=__doc__.split("\n\n")[0])
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
     parser.add_argument("--steps", type=int, default=2_000_000,
@@ -83,8 +85,20 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("steps", "eval_every", "candidate_every", "eval_episodes"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be an integer >= 1")
-    args.out.mkdir(parents=True, exist_ok=True)
     seeds = list(range(args.seed_offset, args.seed_offset + args.seeds))
+    if set(seeds) & (set(protocol.TABLE_SEEDS) | set(protocol.SELECTION_SEEDS)):
+        parser.error("--seed-offset: the budget seeds must stay clear of the tables' seeds "
+                     f"{protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]} and the selection "
+                     f"seeds {protocol.SELECTION_SEEDS}")
+    try:  # every configuration validated before anything compiles
+        for algo in args.algos:
+            for scenario in args.scenarios:
+                TrainConfig(algo=algo, scenario=scenario, variant="plain",
+                            total_env_steps=args.steps, eval_every=args.eval_every,
+                            eval_episodes=args.eval_episodes)
+    except ValueError as error:
+        parser.error(str(error))
+    args.out.mkdir(parents=True, exist_ok=True)
     candidates = list(range(args.candidate_every, args.steps + 1, args.candidate_every))
     rows, start = [], time.time()
     device = str(jax.devices()[0].device_kind)

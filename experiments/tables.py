@@ -1,39 +1,47 @@
-"""The paper's Tables I and II, with seeds and confidence intervals: ``make tables``.
+"""The paper's Tables I and II under a valid protocol: ``make tables``.
 
-    python experiments/tables.py                       # the full grid, 5 seeds (42-50 min)
-    python experiments/tables.py --seeds 10 --seed-offset 100   # fresh seeds, more of them
-    python experiments/tables.py --quick --out /tmp/q  # a tiny budget, for the tests
+    python experiments/tables.py --out experiments/results/tables --force   # the grid
+    python experiments/tables.py --out runs/tables                          # elsewhere
+    python experiments/tables.py --quick --out /tmp/q     # a tiny budget, for the tests
 
-Trains the grid 3 scenarios x 3 learners x 3 variants (plain, pessimistic, CCR at
-lambda 30), ``--seeds`` seeds each. Per scenario and learner, two programs: plain and
-pessimistic together (one program; plain is the pessimistic transform with penalty 0,
-exactly), and CCR; each trains all its runs at once, sharded over every device
-(:mod:`ccrjax.grid`). While one program trains, the next one compiles.
+Trains the grid 3 scenarios x 3 learners x 3 variants (plain, pessimistic, CCR) under
+the protocol of ``docs/protocol.md`` (``experiments/protocol.py``): the tables' seeds
+0-9, each learner's budget (chosen on the plain learners), learning from the 25,600th
+transition, MAAC at the original's update settings (4 updates of batch 1024 every 100
+steps), CCR's lambda and the pessimistic penalty as selected by their searches
+(``experiments/search.py``, on the disjoint selection seeds; ``--lam`` and ``--penalty``
+override). Per scenario and learner, two programs: plain and pessimistic together (plain
+is the pessimistic transform with penalty 0, exactly), and CCR; each trains all its
+runs at once, sharded over every device (:mod:`ccrjax.grid`); while one program trains,
+the next one compiles.
+
+Cost. Measured per seed on this project's 2-core CPU (``benchmarks/train_throughput.py``,
+hidden obstacle, median of 3, the machine otherwise idle): IDDPG about 6,700, MADDPG
+about 3,900 and MAAC about 250 environment steps per second. The grid is 30 runs of
+3,000,000 steps per scenario and learner, so on that CPU it would take about 11 h
+(IDDPG) + 19 h (MADDPG) + 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at
+about 460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000).
+Cells are resumable across invocations, so the grid can be spread over several.
 
 Every finished cell (scenario, learner, variant) is written atomically to
-``<out>/cells/<scenario>-<algo>-<variant>.json`` with its per-seed results, curves and
-behaviour measurements; a re-run skips the cells already there (if they were made with
-the same settings), so a killed run loses only the cells in progress. Every run of the
-script is recorded in ``<out>/invocations.json`` (command, commit, date, wall time, programs
-trained, whether it finished), rewritten after each program, so a run that is killed keeps
-its record. Then it writes:
+``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
+curves, whether the return plateaued (:func:`ccrjax.stats.plateau`), the behaviour
+measurements, and the program's wall time, device and commit. A re-run skips the cells
+made with the same settings. Every invocation is recorded in ``<out>/invocations.json``
+(:mod:`ledger`). Progress lines estimate the time left across programs. Then:
 
-* ``<out>/tables.md``: Table I (dangerous-behaviour frequency) and Table II (success
-  rate) in the paper's layout, each cell our mean and 95% interval over seeds beside the
-  paper's number; the same for the average distance to the hazard centre and the
-  return; the paper's headline figures recomputed from our runs (with bootstrap 95%
-  intervals over seeds); and the direction of the paper's claims, cell by cell;
-* ``<out>/tables.json``: one record per scenario, learner and variant with the
-  per-seed values and the mean and interval of every metric;
-* figures: ``curves_hidden_obstacle_maddpg.png`` (training curves of MADDPG and
-  MADDPG+CCR with 95% bands), ``trajectories_hidden_obstacle_maddpg.png`` (the same
-  episode by both teams, CCR's colours), ``distance_hidden_obstacle_maddpg.png`` (the
-  average distance to the obstacle per robot, in order of arrival).
-
-The budget (``--steps``, default 150,000 environment steps per run for every learner,
-and MAAC with one update of batch 256 every 100 steps instead of the original's four of
-1024) is what fits the whole grid in an hour on a 2-core CPU; the README says what that
-costs in fidelity.
+* ``tables.md`` and ``tables.json``: Tables I and II in the paper's layout with the
+  reference controllers' rows (go-to-goal, oracle), the final distance, the hazard
+  distance and the return; per cell the mean and Student-t 95% interval over seeds
+  (clipped to the metric's range), the paper's number, and Welch tests of CCR against
+  plain and pessimistic (significant cells marked); rliable's aggregate view over the 9
+  scenario x learner pairs (interquartile mean with stratified-bootstrap intervals, the
+  probability of improvement of CCR over each baseline, for danger and success); the
+  paper's headline numbers recomputed (with bootstrap intervals); the claim scorecard;
+* figures: ``progress_<scenario>.png`` (danger against return along training, every
+  variant and learner, with bands: is CCR's safety bought by slower progress?),
+  ``curves_hidden_obstacle_maddpg.png``, ``trajectories_hidden_obstacle_maddpg.png``,
+  ``distance_hidden_obstacle_maddpg.png``.
 """
 
 from __future__ import annotations
@@ -41,77 +49,88 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
+import tempfile
 import time
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
+import protocol
+from ledger import (
+    RESULTS,
+    Ledger,
+    Progress,
+    device_name,
+    duration,
+    log,
+    open_experiment,
+    read_json,
+    settings_record,
+)
+from PIL import Image, ImageDraw, ImageFont
+from reference_controllers import evaluate_controller
 
 from ccrjax import cli
-from ccrjax.analysis import arrival_analysis
-from ccrjax.learners.ddpg import DDPGConfig
-from ccrjax.learners.maac import MAACConfig
+from ccrjax.analysis import arrival_analysis, followers_closest
 from ccrjax.paper import PAPER, PAPER_HEADLINES, SCENARIOS
-from ccrjax.run_folder import POINT_METRICS, git_commit, write_atomic
-from ccrjax.stats import mean_ci
+from ccrjax.plots import Curves, draw_curves, draw_obstacle_distances, draw_progress_matched
+from ccrjax.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
+from ccrjax.run_folder import METRIC_RANGES, POINT_METRICS, git_commit, write_atomic
+from ccrjax.scenarios import Layout
+from ccrjax.stats import (
+    iqm,
+    mean_ci,
+    mean_relative_change,
+    plateau,
+    probability_of_improvement,
+    welch,
+)
 from ccrjax.sweep import GridRuns, GridTraining
-from ccrjax.training import TrainConfig
+from ccrjax.training import ALGOS, TrainConfig, make_env
 
-ALGOS = ("iddpg", "maddpg", "maac")
+PROG = "python experiments/tables.py"
 VARIANTS = ("plain", "pessimistic", "ccr")
 LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 VARIANT_SUFFIX = {"plain": "", "pessimistic": " (Pessimistic)", "ccr": "+CCR"}
 SCENARIO_NAMES = {"hidden_obstacle": "hidden obstacle", "turbulence": "turbulence",
                   "strong_wind": "strong wind"}
+CONTROLLERS = {"go_to_goal": "go-to-goal (reference)", "oracle": "oracle (reference)"}
 METRICS = POINT_METRICS
-
-# The paper's Tables I and II (percent), by (scenario, learner, variant).
-RESULTS = Path(__file__).resolve().parent / "results"
+SEARCHES = RESULTS / "search"
 
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
     """What every cell is trained with (a cell made with other settings is redone)."""
 
-    steps: int = 150_000
-    seeds: int = 5
-    seed_offset: int = 0
-    eval_every: int = 15_000
-    eval_episodes: int = 64
-    lam: float = 30.0
-    penalty: float = 1.0
-    maac_gradient_steps: int = 1
-    maac_batch_size: int = 256
+    lam: float
+    penalty: float
+    seeds: tuple[int, ...] = protocol.TABLE_SEEDS
+    steps: int | None = None  # None: the protocol's budget of each learner
+    eval_every: int = protocol.EVAL_EVERY
+    eval_episodes: int = protocol.EVAL_EPISODES
     behaviour_episodes: int = 64
+    controller_episodes: int = 1024
     quick: bool = False
 
+    def budget(self, algo: str) -> int:
+        return self.steps if self.steps is not None else protocol.BUDGETS[algo]
+
     def config(self, scenario: str, algo: str, variant: str) -> TrainConfig:
-        base = TrainConfig(algo=algo, scenario=scenario, variant=variant,
-                           total_env_steps=self.steps, eval_every=self.eval_every,
-                           eval_episodes=self.eval_episodes, penalty=self.penalty)
-        changes: dict[str, Any] = {"ccr": dataclasses.replace(base.ccr, lam=self.lam)}
-        if algo == "maac":
-            changes["maac"] = dataclasses.replace(
-                base.maac, gradient_steps=self.maac_gradient_steps,
-                batch_size=self.maac_batch_size)
-        if self.quick:  # tiny networks and batches: the pipeline, not the learning
-            changes.update(num_envs=2, episode_length=10, learning_starts=40)
-            changes["ddpg"] = DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,),
-                                         update_every=20)
-            changes["maac"] = MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8,
-                                         attention_heads=2, update_every=20, gradient_steps=1)
-        return dataclasses.replace(base, **changes)
-
-    @property
-    def seed_list(self) -> list[int]:
-        return list(range(self.seed_offset, self.seed_offset + self.seeds))
+        base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
+        if self.quick:
+            base = protocol.quick(base)
+        return dataclasses.replace(
+            base, total_env_steps=self.budget(algo), eval_every=self.eval_every,
+            eval_episodes=self.eval_episodes, penalty=self.penalty,
+            ccr=dataclasses.replace(base.ccr, lam=self.lam))
 
 
-QUICK = dict(steps=400, seeds=2, eval_every=200, eval_episodes=4, behaviour_episodes=4)
+QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,
+             eval_episodes=protocol.QUICK_EVAL_EPISODES, behaviour_episodes=4,
+             controller_episodes=16)
 
 
 @dataclasses.dataclass
@@ -134,15 +153,12 @@ def cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
 
 def read_cell(path: Path, settings: Settings) -> dict | None:
     """A finished cell made with ``settings``, or None."""
-    try:
-        cell = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return cell if cell.get("settings") == dataclasses.asdict(settings) else None
+    cell = read_json(path)
+    return cell if cell and cell.get("settings") == settings_record(settings) else None
 
 
 def build_training(job: Job, settings: Settings) -> GridTraining:
-    seeds = settings.seed_list
+    seeds = list(settings.seeds)
     key = jax.random.PRNGKey(2**30 + 11)  # episodes no training evaluation has seen
     episodes = settings.behaviour_episodes
     if job.variants == ("plain", "pessimistic"):
@@ -155,21 +171,31 @@ def build_training(job: Job, settings: Settings) -> GridTraining:
                         record_episodes=episodes, record_key=key)
 
 
+def _plateau(returns: np.ndarray) -> dict[str, Any]:
+    try:
+        return plateau(returns)
+    except ValueError as error:  # too few seeds or evaluations to tell
+        return {"plateaued": None, "why": str(error)}
+
+
 def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     """The finished cells of a job's runs, by variant."""
-    seeds = settings.seed_list
+    seeds = list(settings.seeds)
     cells = {}
     for index, variant in enumerate(job.variants):
         part = runs.select(np.arange(len(runs.seeds)) // len(seeds) == index)
         final = part.final
         cell = {
             "scenario": job.scenario, "algo": job.algo, "variant": variant,
-            "settings": dataclasses.asdict(settings), "seeds": part.seeds,
+            "settings": settings_record(settings), "seeds": part.seeds,
             "params": {k: [float(x) for x in v] for k, v in part.params.items()},
             "final": {m: [float(x) for x in final[m]] for m in METRICS},
             "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},
+            "return_plateau": _plateau(part.history["return"]),
             "train_seconds_of_program": runs.run_s,
             "compile_seconds_of_program": runs.compile_s,
+            "device": device_name(), "commit": git_commit(),
+            "date": time.strftime("%Y-%m-%d %H:%M %Z"),
         }
         episodes = part.episodes
         if job.scenario == "hidden_obstacle":
@@ -177,9 +203,11 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
             cell["arrival"] = {  # per seed and arrival rank, means over episodes
                 "closest": analysis["closest"].mean(axis=1).tolist(),
                 "centre_distance": analysis["centre_distance"].mean(axis=1).tolist(),
+                "followers_closest_successful": followers_closest(analysis).tolist(),
             }
         cell["episode"] = {  # the first recorded episode of the first seed, for pictures
             "position": episodes["position"][0, ..., 0].tolist(),
+            "success": episodes["success"][0, :, 0].tolist(),
             "hazard_centre": episodes["hazard_centre"][0, :, 0].tolist(),
             "hazard_half_extent": episodes["hazard_half_extent"][0, :, 0].tolist(),
             "ccr_state": (episodes["ccr_state"][0, ..., 0].tolist()
@@ -189,17 +217,15 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     return cells
 
 
-def run_grid(settings: Settings, out: Path, log,
-             on_program_done: Callable[[int], None] = lambda trained: None
-             ) -> tuple[dict, int]:
+def jobs_of(settings: Settings) -> list[Job]:
+    return [Job(scenario, algo, variants) for scenario in SCENARIOS for algo in ALGOS
+            for variants in (("plain", "pessimistic"), ("ccr",))]
+
+
+def run_grid(settings: Settings, out: Path, ledger: Ledger) -> tuple[dict, int]:
     """Trains every missing cell (compiling the next program while one trains); returns
-    the cells by (scenario, algo, variant) and the number of programs trained.
-    ``on_program_done(trained)`` is called once a program's cells are written."""
-    jobs = []
-    for scenario in SCENARIOS:
-        for algo in ALGOS:
-            for variants in (("plain", "pessimistic"), ("ccr",)):
-                jobs.append(Job(scenario, algo, variants))
+    the cells by (scenario, algo, variant) and the number of programs trained."""
+    jobs = jobs_of(settings)
     cells: dict[tuple[str, str, str], dict] = {}
     todo = []
     for job in jobs:
@@ -211,8 +237,11 @@ def run_grid(settings: Settings, out: Path, log,
         else:
             todo.append(job)
     log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to train "
-        f"({settings.seeds} seeds, {settings.steps:,} steps per run, "
-        f"{jax.device_count()} device(s))")
+        f"({len(settings.seeds)} seeds per cell, budgets "
+        f"{ {a: settings.budget(a) for a in ALGOS} }, on {device_name()})")
+    progress = Progress([(job.name, job.algo,
+                          len(job.variants) * len(settings.seeds) * settings.budget(job.algo))
+                         for job in todo])
     (out / "cells").mkdir(parents=True, exist_ok=True)
     # Compilation runs ahead in worker threads (XLA's compiler releases the GIL) while the
     # main thread trains; the quick mode's programs run for moments, so there it compiles
@@ -222,148 +251,182 @@ def run_grid(settings: Settings, out: Path, log,
         for job in todo:
             job.training = build_training(job, settings)
         compiled = [compiler.submit(job.training.compile, not settings.quick) for job in todo]
-        for number, (job, done) in enumerate(zip(todo, compiled, strict=True), start=1):
+        for number, (job, done) in enumerate(zip(todo, compiled, strict=True)):
             done.result()
             runs = job.training.run()
             for variant, cell in cells_of(job, runs, settings).items():
                 write_atomic(cell_path(out, job.scenario, job.algo, variant),
                              json.dumps(cell) + "\n")
                 cells[(job.scenario, job.algo, variant)] = cell
-            log(f"[{number}/{len(todo)}] {job.name}: trained {len(runs.seeds)} runs in "
-                f"{runs.run_s:.0f} s (compiled in {runs.compile_s:.0f} s)")
             job.training = None  # free the compiled program
-            on_program_done(number)
+            ledger.record(number + 1)
+            log(progress.finished(number, runs.run_s + runs.compile_s))
     return cells, len(todo)
 
 
+def reference_rows(settings: Settings) -> dict[tuple[str, str], dict[str, float]]:
+    """The reference controllers' metrics per (scenario, controller), over
+    ``controller_episodes`` fresh episodes (no training, no seeds)."""
+    rows = {}
+    key = jax.random.PRNGKey(2**30 + 12)
+    for scenario in SCENARIOS:
+        env = make_env(settings.config(scenario, "maddpg", "plain"),
+                       settings.controller_episodes)
+        for name in CONTROLLERS:
+            metrics = evaluate_controller(env, name, key)
+            rows[(scenario, name)] = {m: float(v) for m, v in metrics.items()}
+    return rows
+
+
 # ---------------------------------------------------------------------------- the numbers
-def stats(values: list[float]) -> dict[str, Any]:
-    return {"per_seed": values, **mean_ci(values)}
-
-
-def relative_change(new: np.ndarray, base: np.ndarray) -> float:
-    """``(mean(new) - mean(base)) / mean(base)``; NaN where the base is 0."""
-    base_mean = float(np.mean(base))
-    return float((np.mean(new) - base_mean) / base_mean) if base_mean != 0 else float("nan")
+def stats(values: list[float], metric: str) -> dict[str, Any]:
+    return {"per_seed": values, **mean_ci(values, bounds=METRIC_RANGES[metric])}
 
 
 def headline(cells, metric: str, new: str, base: str, sign: float,
              resamples: int = 2000, seed: int = 0) -> dict[str, Any]:
-    """The paper's averaged relative change over the 9 scenario x learner pairs.
-
-    ``sign = -1``: reduction ``(base - new) / base``; ``+1``: increase. Pairs whose base
-    mean is 0 are left out (and counted). The interval resamples seeds within every cell
-    (bootstrap, ``resamples`` times) and takes the 2.5 and 97.5 percentiles.
-    """
-    rng = np.random.default_rng(seed)
-    pairs = [(s, a) for s in SCENARIOS for a in ALGOS]
-    values, used = [], []
-    for scenario, algo in pairs:
-        n = np.asarray(cells[(scenario, algo, new)]["final"][metric])
-        b = np.asarray(cells[(scenario, algo, base)]["final"][metric])
-        change = relative_change(n, b)
-        if np.isfinite(change):
-            values.append(sign * change)
-            used.append((scenario, algo, n, b))
-    if not used:
-        return {"mean": None, "ci_low": None, "ci_high": None, "pairs": 0}
-    boot = np.empty(resamples)
-    for r in range(resamples):
-        total = 0.0
-        for _, _, n, b in used:
-            nb = rng.choice(n, n.size)
-            bb = rng.choice(b, b.size)
-            bm = bb.mean()
-            total += sign * (nb.mean() - bm) / bm if bm != 0 else 0.0
-        boot[r] = total / len(used)
-    return {"mean": float(np.mean(values)), "ci_low": float(np.percentile(boot, 2.5)),
-            "ci_high": float(np.percentile(boot, 97.5)), "pairs": len(used),
-            "left_out": len(pairs) - len(used)}
+    """The paper's averaged relative change over the 9 scenario x learner pairs
+    (:func:`ccrjax.stats.mean_relative_change`)."""
+    pairs = [(np.asarray(cells[(s, a, new)]["final"][metric]),
+              np.asarray(cells[(s, a, base)]["final"][metric]))
+             for s in SCENARIOS for a in ALGOS]
+    return mean_relative_change(pairs, sign, resamples=resamples, seed=seed)
 
 
-def welch_significant(a: list[float], b: list[float]) -> bool:
-    """Whether the 95% Welch interval of ``mean(a) - mean(b)`` excludes 0."""
-    from scipy import stats as scipy_stats
+def welch_marks(cells) -> dict[tuple[str, str, str, str], dict]:
+    """Welch tests of CCR against plain and pessimistic, per cell and metric."""
+    marks = {}
+    for scenario in SCENARIOS:
+        for algo in ALGOS:
+            ccr = cells[(scenario, algo, "ccr")]["final"]
+            for base in ("plain", "pessimistic"):
+                other = cells[(scenario, algo, base)]["final"]
+                for metric in ("danger_frequency", "success_rate"):
+                    marks[(scenario, algo, base, metric)] = welch(ccr[metric], other[metric])
+    return marks
 
-    a, b = np.asarray(a), np.asarray(b)
-    if a.size < 2 or b.size < 2:
-        return False
-    if np.std(a) == 0 and np.std(b) == 0:
-        return bool(np.mean(a) != np.mean(b))
-    return bool(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue < 0.05)
 
-
-def claims(cells) -> dict[str, Any]:
-    """The direction of the paper's main claims, checked cell by cell."""
+def claims(cells, marks) -> dict[str, Any]:
+    """The direction of the paper's claims, checked cell by cell (the scorecard)."""
     result: dict[str, Any] = {}
     for base in ("plain", "pessimistic"):
         lower, significant, detail = 0, 0, []
         for scenario in SCENARIOS:
             for algo in ALGOS:
-                ccr = cells[(scenario, algo, "ccr")]["final"]["danger_frequency"]
-                other = cells[(scenario, algo, base)]["final"]["danger_frequency"]
-                is_lower = float(np.mean(ccr)) < float(np.mean(other))
-                is_significant = is_lower and welch_significant(ccr, other)
+                ccr = float(np.mean(cells[(scenario, algo, "ccr")]["final"]["danger_frequency"]))
+                other = float(np.mean(cells[(scenario, algo, base)]["final"]["danger_frequency"]))
+                is_lower = ccr < other
+                is_significant = is_lower and marks[(scenario, algo, base,
+                                                     "danger_frequency")]["significant"]
                 lower += is_lower
                 significant += is_significant
-                detail.append({"scenario": scenario, "algo": algo, "ccr": float(np.mean(ccr)),
-                               base: float(np.mean(other)), "lower": is_lower,
-                               "significant": is_significant})
+                detail.append({"scenario": scenario, "algo": algo, "ccr": ccr, base: other,
+                               "lower": is_lower, "significant": is_significant})
         result[f"danger_lower_vs_{base}"] = {"cells": lower, "significant": significant,
                                              "of": 9, "detail": detail}
     raised = []
     for algo in ALGOS:
+        ccr = float(np.mean(cells[("hidden_obstacle", algo, "ccr")]["final"]["success_rate"]))
+        both = []
         for base in ("plain", "pessimistic"):
-            ccr = cells[("hidden_obstacle", algo, "ccr")]["final"]["success_rate"]
-            other = cells[("hidden_obstacle", algo, base)]["final"]["success_rate"]
-            raised.append({"algo": algo, "vs": base, "ccr": float(np.mean(ccr)),
-                           base: float(np.mean(other)),
-                           "higher": float(np.mean(ccr)) > float(np.mean(other)),
-                           "significant": float(np.mean(ccr)) > float(np.mean(other))
-                           and welch_significant(ccr, other)})
-    result["hidden_obstacle_success_raised"] = raised
+            other = float(np.mean(cells[("hidden_obstacle", algo, base)]["final"]["success_rate"]))
+            mark = marks[("hidden_obstacle", algo, base, "success_rate")]
+            both.append({"vs": base, "ccr": ccr, "other": other, "higher": ccr > other,
+                         "significant": ccr > other and mark["significant"]})
+        raised.append({"algo": algo, "against": both,
+                       "above_both": all(b["higher"] for b in both),
+                       "significantly_above_both": all(b["significant"] for b in both)})
+    result["hidden_obstacle_success_above_both"] = {
+        "learners": sum(r["above_both"] for r in raised),
+        "significant": sum(r["significantly_above_both"] for r in raised),
+        "of": 3, "detail": raised}
     return result
 
 
-def summary(cells, settings: Settings, invocations: list[dict[str, Any]]) -> dict[str, Any]:
-    """Everything ``tables.json`` holds. ``invocations``: every run of this script that
-    produced these cells (command, commit, wall time, programs trained), oldest first."""
+def aggregates(cells, resamples: int = 2000) -> dict[str, Any]:
+    """rliable over the 9 scenario x learner pairs (tasks), seeds as runs: each variant's
+    IQM of danger and of success, and the probability that CCR improves on each baseline
+    (lower danger, higher success)."""
+    pairs = [(s, a) for s in SCENARIOS for a in ALGOS]
+    result: dict[str, Any] = {}
+    for metric, sign in (("danger_frequency", -1.0), ("success_rate", 1.0)):
+        scores = {v: np.array([cells[(s, a, v)]["final"][metric] for s, a in pairs]).T
+                  for v in VARIANTS}  # [seeds, 9]
+        result[metric] = {
+            "iqm": iqm(scores, resamples=resamples),
+            "probability_of_improvement": {
+                base: probability_of_improvement(sign * scores["ccr"], sign * scores[base],
+                                                 resamples=resamples)
+                for base in ("plain", "pessimistic")},
+        }
+    return result
+
+
+def training_danger_share(cells) -> dict[str, Any]:
+    """MADDPG+CCR's dangerous robot-steps during training from the start of learning, as a
+    share of plain MADDPG's, on the hidden obstacle (the paper's 28.09%)."""
+    ccr, plain = (np.asarray(cells[("hidden_obstacle", "maddpg", v)]["final"]
+                             ["learning_danger_steps"]) for v in ("ccr", "plain"))
+    share = mean_relative_change([(ccr, plain)], +1.0)
+    return {"mean": None if share["mean"] is None else 1.0 + share["mean"],
+            "ci_low": None if share["ci_low"] is None else 1.0 + share["ci_low"],
+            "ci_high": None if share["ci_high"] is None else 1.0 + share["ci_high"]}
+
+
+def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
+            controllers: dict, sources: dict[str, str]) -> dict[str, Any]:
+    """Everything ``tables.json`` holds."""
+    marks = welch_marks(cells)
     records = []
     for scenario in SCENARIOS:
         for algo in ALGOS:
             for variant in VARIANTS:
                 cell = cells[(scenario, algo, variant)]
                 record = {"scenario": scenario, "algo": algo, "variant": variant,
-                          "seeds": cell["seeds"]}
+                          "seeds": cell["seeds"], "return_plateau": cell["return_plateau"],
+                          "program_seconds": cell["train_seconds_of_program"]
+                          + cell["compile_seconds_of_program"],
+                          "device": cell["device"], "commit": cell["commit"]}
                 for metric in METRICS:
-                    record[metric] = stats(cell["final"][metric])
+                    record[metric] = stats(cell["final"][metric], metric)
                     paper = PAPER.get(metric, {}).get((scenario, algo, variant))
                     if paper is not None:
                         record[metric]["paper"] = paper
+                    if variant == "ccr" and metric in ("danger_frequency", "success_rate"):
+                        record[metric]["welch"] = {
+                            base: marks[(scenario, algo, base, metric)]
+                            for base in ("plain", "pessimistic")}
+                if "arrival" in cell:
+                    record["followers_closest_successful"] = stats(
+                        [x for x in cell["arrival"]["followers_closest_successful"]
+                         if np.isfinite(x)] or [float("nan")], "hazard_distance")
                 records.append(record)
-    ho = [cells[("hidden_obstacle", "maddpg", v)]["final"]["cumulative_danger_steps"]
-          for v in ("ccr", "plain")]
-    share = float(np.mean(ho[0]) / np.mean(ho[1])) if np.mean(ho[1]) > 0 else None
     headlines = {
         "danger_reduction_vs_plain": headline(cells, "danger_frequency", "ccr", "plain", -1),
         "danger_reduction_vs_pessimistic": headline(cells, "danger_frequency", "ccr",
                                                     "pessimistic", -1),
         "success_change_vs_pessimistic": headline(cells, "success_rate", "ccr", "pessimistic",
                                                   +1),
-        "training_danger_share_maddpg_hidden_obstacle": {"mean": share},
+        "training_danger_share_maddpg_hidden_obstacle": training_danger_share(cells),
     }
     programs = {(c["scenario"], c["algo"], c["variant"] == "ccr"): c for c in cells.values()}
     return {
-        "settings": dataclasses.asdict(settings),
+        "settings": settings_record(settings),
+        "sources": sources,
+        "budgets": {a: settings.budget(a) for a in ALGOS},
         "invocations": invocations,
         "programs_seconds": sum(c["train_seconds_of_program"] + c["compile_seconds_of_program"]
                                 for c in programs.values()),
-        "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
+        "devices": sorted({c["device"] for c in cells.values()}),
+        "commits": sorted({str(c["commit"]) for c in cells.values()}),
         "jax_version": jax.__version__,
         "records": records,
+        "controllers": [{"scenario": s, "controller": c, **m}
+                        for (s, c), m in controllers.items()],
         "headlines": headlines,
         "paper_headlines": PAPER_HEADLINES,
-        "claims": claims(cells),
+        "aggregates": aggregates(cells),
+        "claims": claims(cells, marks),
     }
 
 
@@ -376,8 +439,11 @@ def _cell_text(record_metric: dict, percent: bool) -> str:
     scale = 100.0 if percent else 1.0
     unit = "%" if percent else ""
     text = f"{record_metric['mean'] * scale:.2f}{unit}"
-    if record_metric.get("half_width") is not None:
-        text += f" ± {record_metric['half_width'] * scale:.2f}"
+    if record_metric.get("ci_low") is not None:
+        text += f" [{record_metric['ci_low'] * scale:.2f}, {record_metric['ci_high'] * scale:.2f}]"
+    marks = record_metric.get("welch", {})
+    text += "".join(symbol for base, symbol in (("plain", "*"), ("pessimistic", "†"))
+                    if marks.get(base, {}).get("significant"))
     if "paper" in record_metric:
         text += f" ({record_metric['paper'] * scale:.2f}{unit})"
     return text
@@ -385,8 +451,13 @@ def _cell_text(record_metric: dict, percent: bool) -> str:
 
 def table(result: dict, metric: str, title: str, percent: bool) -> list[str]:
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
+    controllers = {(c["scenario"], c["controller"]): c for c in result["controllers"]}
     header = "| | " + " | ".join(SCENARIO_NAMES[s] for s in SCENARIOS) + " |"
     lines = [f"### {title}", "", header, "|---|" + "---|" * len(SCENARIOS)]
+    for name, label in CONTROLLERS.items():
+        scale, unit = (100.0, "%") if percent else (1.0, "")
+        lines.append(f"| {label} | " + " | ".join(
+            f"{controllers[(s, name)][metric] * scale:.2f}{unit}" for s in SCENARIOS) + " |")
     for algo in ALGOS:
         for variant in VARIANTS:
             name = LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant]
@@ -395,43 +466,104 @@ def table(result: dict, metric: str, title: str, percent: bool) -> list[str]:
     return lines + [""]
 
 
+def _interval(value: dict, key: str = "mean") -> str:
+    text = _pct(value.get(key))
+    if value.get("ci_low") is not None:
+        text += f" [{_pct(value['ci_low'])}, {_pct(value['ci_high'])}]"
+    return text
+
+
 def tables_markdown(result: dict) -> str:
     settings = result["settings"]
     h = result["headlines"]
     p = result["paper_headlines"]
+    seeds = settings["seeds"]
     lines = [
         "# The paper's Tables I and II, re-run with ccrjax",
         "",
-        f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}); the 18 "
-        f"programs' compile and training time add up to {result['programs_seconds'] / 60:.1f} "
-        "min. Runs of the script that made these results:",
+        f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}) at commit(s) "
+        f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
+        f"training time add up to {duration(result['programs_seconds'])}. Invocations:",
         "",
-        *(f"* `{run['command']}` at commit `{run['commit']}`, {run['date']}: trained "
-          f"{run['programs_trained']} of 18 programs, wall time {run['wall_time_s'] / 60:.1f} min"
-          + ("" if run.get("finished", True) else
-             f" (stopped before the end{': ' + run['note'] if run.get('note') else ''})")
+        *(f"* `{run['command']}` at `{run['commit']}` on {run.get('device', '?')}, "
+          f"{run['date']}: trained {run['programs_trained']} of 18 programs, wall time "
+          f"{duration(run['wall_time_s'])}"
+          + ("" if run.get("finished", True) else " (stopped before the end)")
           for run in result["invocations"]),
         "",
-        f"{settings['seeds']} seeds per cell (seeds {settings['seed_offset']} to "
-        f"{settings['seed_offset'] + settings['seeds'] - 1}), {settings['steps']:,} environment "
-        f"steps per run, CCR at lambda {settings['lam']:g}, pessimistic penalty "
-        f"{settings['penalty']:g}; MAAC with {settings['maac_gradient_steps']} update(s) of batch "
-        f"{settings['maac_batch_size']} per 100 steps. Each cell: the final evaluation "
-        f"({settings['eval_episodes']} fresh episodes per seed, deterministic policies), mean "
-        "± half-width of the 95% confidence interval over seeds (Student t), and in brackets "
-        "the paper's number.",
+        f"{len(seeds)} seeds per cell (seeds {seeds[0]} to {seeds[-1]}); environment steps per "
+        f"run {result['budgets']}; CCR at lambda {settings['lam']:g} "
+        f"({result['sources']['lam']}), pessimistic penalty {settings['penalty']:g} "
+        f"({result['sources']['penalty']}). Each cell: the final evaluation "
+        f"({settings['eval_episodes']} fresh episodes per seed, deterministic policies), the "
+        "mean and its 95% confidence interval over seeds (Student t, clipped to the metric's "
+        "range); `*`: CCR differs from plain, `†`: from pessimistic (Welch, p < 0.05); in "
+        "brackets the paper's number. Reference rows: hand-written controllers over "
+        f"{settings['controller_episodes']} episodes (no learning).",
         "",
     ]
     lines += table(result, "danger_frequency", "Table I: dangerous-behaviour frequency", True)
     lines += table(result, "success_rate", "Table II: success rate", True)
+    lines += table(result, "target_distance", "Final distance to the target", False)
     lines += table(result, "hazard_distance", "Average distance to the hazard centre", False)
     lines += table(result, "return", "Return (environment reward per robot and episode)", False)
+    by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
     lines += [
+        "### Behaviour on the hidden obstacle",
+        "",
+        "The followers' closest approach to the obstacle's surface: every robot but the first "
+        "to arrive, counting only robots that end in the target area (keeping away by giving "
+        "up does not count); mean over seeds, 95% CI. The paper: with CCR the followers steer "
+        "away before touching.",
+        "",
+        "| | " + " | ".join(VARIANTS) + " |",
+        "|---|" + "---|" * len(VARIANTS),
+    ]
+    for algo in ALGOS:
+        lines.append(f"| {LEARNER_NAMES[algo]} | " + " | ".join(
+            _cell_text(by_key[("hidden_obstacle", algo, v)]["followers_closest_successful"],
+                       False) for v in VARIANTS) + " |")
+    lines.append("")
+    not_levelled = [r for r in result["records"] if r["variant"] == "plain"
+                    and r["return_plateau"].get("plateaued") is False]
+    lines += [
+        "### Did the plain learners converge?",
+        "",
+        "The plain learner's evaluated return has plateaued if the mean of its last 20% of "
+        "evaluations lies within the 95% interval of the 20% before. "
+        + ("It did in every cell." if not not_levelled else
+           "It did **not** in: " + ", ".join(f"{r['scenario']} {LEARNER_NAMES[r['algo']]}"
+                                             for r in not_levelled) + "."),
+        "",
+        "### Aggregates over the 9 scenario x learner pairs (rliable)",
+        "",
+        "Interquartile mean over seeds x pairs with 95% stratified-bootstrap intervals, and "
+        "the probability that a CCR run improves on a baseline run of the same pair (lower "
+        "danger, higher success; 0.5 = no difference).",
+        "",
+        "| | IQM danger | IQM success | P(CCR safer) | P(CCR more successful) |",
+        "|---|---|---|---|---|",
+    ]
+    agg = result["aggregates"]
+    for variant in VARIANTS:
+        danger = agg["danger_frequency"]["iqm"][variant]
+        success = agg["success_rate"]["iqm"][variant]
+        if variant == "ccr":
+            improve = ("", "")
+        else:
+            improve = tuple(
+                _probability(agg[m]["probability_of_improvement"][variant])
+                for m in ("danger_frequency", "success_rate"))
+        lines.append(f"| {variant} | {_interval(danger, 'iqm')} | {_interval(success, 'iqm')} | "
+                     f"{improve[0]} | {improve[1]} |")
+    lines += [
+        "",
         "### The paper's headline figures, recomputed",
         "",
         "Averages over the 9 scenario x learner pairs of the relative change of the mean, as "
         "the paper computes them (its numbers follow from its tables this way); 95% "
-        "bootstrap intervals over seeds.",
+        "bootstrap intervals over seeds. The training share counts dangerous robot-steps "
+        "from the start of learning.",
         "",
         "| figure | ours | paper |",
         "|---|---|---|",
@@ -441,73 +573,74 @@ def tables_markdown(result: dict) -> str:
         "danger_reduction_vs_pessimistic": "danger reduction, CCR vs pessimistic",
         "success_change_vs_pessimistic": "success change, CCR vs pessimistic",
         "training_danger_share_maddpg_hidden_obstacle":
-            "cumulative training dangerous steps, MADDPG+CCR / MADDPG (hidden obstacle)",
+            "training dangerous steps since learning started, MADDPG+CCR / MADDPG "
+            "(hidden obstacle)",
     }
     for key, label in names.items():
         value = h[key]
-        ours = _pct(value["mean"])
-        if value.get("ci_low") is not None:
-            ours += f" [{_pct(value['ci_low'])}, {_pct(value['ci_high'])}]"
+        ours = _interval(value)
         if value.get("left_out"):
             ours += f" ({value['left_out']} pair(s) with a zero base left out)"
         lines.append(f"| {label} | {ours} | {_pct(p[key])} |")
     c = result["claims"]
     lines += [
         "",
-        "### Do the paper's claims hold here?",
+        "### Scorecard: do the paper's claims hold here?",
         "",
-        f"* CCR lowers the dangerous-behaviour frequency vs plain in "
-        f"{c['danger_lower_vs_plain']['cells']} of 9 cells "
-        f"({c['danger_lower_vs_plain']['significant']} significantly, Welch p < 0.05); "
-        "the paper: 8 of 9.",
-        f"* CCR lowers it vs pessimistic in {c['danger_lower_vs_pessimistic']['cells']} of 9 "
+        f"* CCR's danger below plain's in {c['danger_lower_vs_plain']['cells']} of 9 cells "
+        f"({c['danger_lower_vs_plain']['significant']} significantly); the paper: 8 of 9.",
+        f"* below pessimistic's in {c['danger_lower_vs_pessimistic']['cells']} of 9 "
         f"({c['danger_lower_vs_pessimistic']['significant']} significantly); the paper: 9 of 9.",
-        "* CCR's success rate on the hidden obstacle: "
-        + "; ".join(
-            f"{LEARNER_NAMES[r['algo']]} vs {r['vs']}: {_pct(r['ccr'])} vs {_pct(r[r['vs']])} "
-            f"({'higher' if r['higher'] else 'not higher'}"
-            f"{', significant' if r['significant'] else ''})"
-            for r in c["hidden_obstacle_success_raised"]
-        )
-        + "; the paper: higher in all six.",
+        f"* hidden-obstacle success above both baselines for "
+        f"{c['hidden_obstacle_success_above_both']['learners']} of 3 learners "
+        f"({c['hidden_obstacle_success_above_both']['significant']} significantly); the "
+        "paper: 3 of 3.",
         "",
     ]
     return "\n".join(lines)
 
 
-def draw_figures(cells, out: Path) -> list[Path]:
-    from ccrjax.plots import Curves, draw_curves
+def _probability(value: dict) -> str:
+    return (f"{value['probability']:.2f} [{value['ci_low']:.2f}, {value['ci_high']:.2f}]")
 
+
+# ---------------------------------------------------------------------------- figures
+def draw_figures(cells, out: Path) -> list[Path]:
     written = []
+    for scenario in SCENARIOS:
+        panels = {}
+        for algo in ALGOS:
+            panels[LEARNER_NAMES[algo]] = {
+                variant: (np.asarray(cells[(scenario, algo, variant)]["history"]["return"]),
+                          np.asarray(cells[(scenario, algo, variant)]["history"]
+                                     ["danger_frequency"]))
+                for variant in VARIANTS}
+        path = out / f"progress_{scenario}.png"
+        draw_progress_matched(panels, path, title=f"{SCENARIO_NAMES[scenario]}: dangerous-"
+                              "behaviour frequency against return along training")
+        written.append(path)
     plain = cells[("hidden_obstacle", "maddpg", "plain")]
     ccr = cells[("hidden_obstacle", "maddpg", "ccr")]
     curves = Curves()
+    metrics = ("danger_frequency", "success_rate", "learning_danger_steps")
     for label, cell in (("MADDPG", plain), ("MADDPG+CCR", ccr)):
         steps = np.asarray(cell["history"]["env_steps"][0])
-        curves.add(label, steps, {m: np.asarray(cell["history"][m]) for m in
-                                  ("danger_frequency", "success_rate", "cumulative_danger_steps")})
+        curves.add(label, steps, {m: np.asarray(cell["history"][m]) for m in metrics})
     path = out / "curves_hidden_obstacle_maddpg.png"
-    draw_curves(curves, path, metrics=("danger_frequency", "success_rate",
-                                       "cumulative_danger_steps"),
+    draw_curves(curves, path, metrics=metrics,
                 title="hidden obstacle: MADDPG vs MADDPG+CCR during training")
     written.append(path)
     path = out / "trajectories_hidden_obstacle_maddpg.png"
     draw_trajectories(plain, ccr, path)
     written.append(path)
     path = out / "distance_hidden_obstacle_maddpg.png"
-    draw_distances(plain, ccr, path)
+    draw_obstacle_distances(np.asarray(plain["arrival"]["centre_distance"]),
+                            np.asarray(ccr["arrival"]["centre_distance"]), path)
     written.append(path)
     return written
 
 
-def _record(cell: dict, title: str):
-    from ccrjax.render import (
-        CCR_STATE_COLOURS,
-        CCR_STATE_NAMES,
-        EpisodeRecord,
-    )
-    from ccrjax.scenarios import Layout
-
+def _record(cell: dict) -> EpisodeRecord:
     episode = cell["episode"]
     positions = np.asarray(episode["position"])  # [T + 1, N, 2]
     states = np.zeros(positions.shape[:2], np.int32)
@@ -526,23 +659,15 @@ def _record(cell: dict, title: str):
 
 def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
     """The same evaluation episode (same starts, same obstacle) by both teams, side by side."""
-    import tempfile
-
-    from PIL import Image
-
-    from ccrjax.render import draw_episode
-
     images = []
     with tempfile.TemporaryDirectory() as folder:
         for name, cell in (("plain", plain), ("ccr", ccr)):
             file = Path(folder) / f"{name}.png"
-            draw_episode(_record(cell, name), file, dpi=90)
+            draw_episode(_record(cell), file, dpi=90)
             images.append(Image.open(file).convert("RGB"))
         width = sum(image.width for image in images)
         height = max(image.height for image in images)
         canvas = Image.new("RGB", (width, height + 40), "white")
-        from PIL import ImageDraw, ImageFont
-
         draw = ImageDraw.Draw(canvas)
         font = ImageFont.load_default(size=22)
         x = 0
@@ -556,88 +681,81 @@ def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
         temporary.replace(path)
 
 
-def draw_distances(plain: dict, ccr: dict, path: Path) -> None:
-    from ccrjax.plots import draw_obstacle_distances
-
-    draw_obstacle_distances(plain["arrival"]["centre_distance"],
-                            ccr["arrival"]["centre_distance"], path)
-
-
 # ---------------------------------------------------------------------------- command
 def build_parser() -> argparse.ArgumentParser:
-    parser = cli.Parser(prog="python experiments/tables.py", description=__doc__.split("\n")[0])
-    defaults = Settings()
+    parser = cli.Parser(prog=PROG, description=__doc__.split("\n")[0],
+                        epilog=__doc__.split("\n\n")[3],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=None,
-                        help=f"seeds per cell (default: {defaults.seeds})")
+                        help=f"seeds per cell, at least 2 (default: {len(protocol.TABLE_SEEDS)})")
     parser.add_argument("--seed-offset", type=cli.seed_int, default=None,
-                        help="first seed (default: 0); fresh seeds check our numbers")
+                        help="first seed (default: 0); must stay clear of the selection "
+                        "seeds 100-102")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
-                        help=f"environment steps per run (default: {defaults.steps:,})")
+                        help=f"environment steps per run (default: {protocol.BUDGETS})")
+    parser.add_argument("--lam", type=cli.non_negative_float, default=None,
+                        help="CCR's lambda (default: the lambda search's choice, "
+                        f"{SEARCHES / 'ccr' / 'search.json'})")
+    parser.add_argument("--penalty", type=cli.non_negative_float, default=None,
+                        help="the pessimistic penalty (default: the penalty search's choice, "
+                        f"{SEARCHES / 'pessimistic' / 'search.json'})")
     parser.add_argument("--quick", action="store_true",
                         help="a tiny budget and tiny networks: checks the pipeline in minutes")
     parser.add_argument("--out", type=Path, default=None,
-                        help=f"results folder (default: {RESULTS}; with --quick a temporary "
-                        "folder must be given)")
+                        help="results folder (default: runs/tables; the committed results are "
+                        f"{RESULTS / 'tables'}, written with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
     return parser
 
 
-INVOCATIONS = "invocations.json"
-
-
-def earlier_invocations(out: Path, settings: Settings) -> list[dict[str, Any]]:
-    """The records of earlier runs of this script that made cells with these settings:
-    from ``invocations.json`` (kept up to date while a run trains, so killed runs are
-    there too), else from an older ``tables.json``; none when the settings changed."""
-    for name in (INVOCATIONS, "tables.json"):
-        try:
-            old = json.loads((out / name).read_text())
-        except (OSError, ValueError):
-            continue
-        if old.get("settings") == dataclasses.asdict(settings):
-            return list(old.get("invocations", []))
-        return []
-    return []
+def selected(variant: str, given: float | None, quick: bool) -> tuple[float, str]:
+    """The value of ``variant``'s parameter and where it came from."""
+    if given is not None:
+        return given, "given on the command line"
+    if quick:
+        return {"ccr": 30.0, "pessimistic": 1.0}[variant], "the quick mode's fixed value"
+    path = SEARCHES / variant / "search.json"
+    search = read_json(path)
+    if not search or "selection" not in search:
+        option = "--lam" if variant == "ccr" else "--penalty"
+        raise cli.UsageError(f"no {variant} search result at {path}: run experiments/search.py "
+                             f"--variant {variant} first, or give {option}")
+    return float(search["selection"]["value"]), f"selected by the search in {path.parent.name}"
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.quick and args.out is None:
-        cli.fail("python experiments/tables.py",
-                 "--quick needs --out: quick numbers must not replace the committed results")
-    fields = dict(QUICK, quick=True) if args.quick else {}
-    for name in ("seeds", "seed_offset", "steps"):
-        if getattr(args, name) is not None:
-            fields[name] = getattr(args, name)
-    settings = Settings(**fields)
-    out = args.out or RESULTS
-    cli.enable_compilation_cache(cli.default_cache_dir())
+    out = args.out or Path("runs/tables")
+    sources: dict[str, str] = {}
 
-    def log(text: str) -> None:
-        print(text, file=sys.stderr, flush=True)
+    def settings_of() -> Settings:
+        if args.quick and args.out is None:
+            raise cli.UsageError("--quick needs --out: quick numbers must not mix with a "
+                                 "real grid's")
+        lam, sources["lam"] = selected("ccr", args.lam, args.quick)
+        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick)
+        fields: dict[str, Any] = dict(QUICK, quick=True) if args.quick else {}
+        if args.steps is not None:
+            fields["steps"] = args.steps
+        offset = args.seed_offset if args.seed_offset is not None else fields.get(
+            "seeds", protocol.TABLE_SEEDS)[0]
+        count = args.seeds or len(fields.get("seeds", protocol.TABLE_SEEDS))
+        fields["seeds"] = tuple(range(offset, offset + count))
+        if set(fields["seeds"]) & set(protocol.SELECTION_SEEDS):
+            raise cli.UsageError(f"--seed-offset {offset}: the tables' seeds must not overlap "
+                                 f"the selection seeds {protocol.SELECTION_SEEDS}")
+        settings = Settings(lam=lam, penalty=penalty, **fields)
+        for job in jobs_of(settings):  # every configuration validated before compiling
+            for variant in job.variants:
+                settings.config(job.scenario, job.algo, variant)
+        return settings
 
-    start = time.perf_counter()
-    invocation = {
-        "command": " ".join(["python experiments/tables.py",
-                             *(argv if argv is not None else sys.argv[1:])]),
-        "commit": git_commit(),  # the code this run trains with (+dirty: uncommitted changes)
-        "date": time.strftime("%Y-%m-%d %H:%M %Z"),
-        "finished": False,
-    }
-    out.mkdir(parents=True, exist_ok=True)
-    previous = earlier_invocations(out, settings)
-
-    def record(trained: int, finished: bool = False) -> None:
-        # Rewritten after every program, so an invocation that is killed keeps its record.
-        invocation.update(wall_time_s=time.perf_counter() - start, programs_trained=trained,
-                          finished=finished)
-        ledger = {"settings": dataclasses.asdict(settings),
-                  "invocations": [*previous, invocation]}
-        write_atomic(out / INVOCATIONS, json.dumps(ledger, indent=1) + "\n")
-
-    record(0)
-    cells, trained = run_grid(settings, out, log, record)
-    record(trained, finished=True)
-    result = summary(cells, settings, [*previous, invocation])
+    settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
+    cells, trained = run_grid(settings, out, ledger)
+    ledger.record(trained, finished=True)
+    controllers = reference_rows(settings)
+    result = summary(cells, settings, ledger.invocations, controllers, sources)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))
     figures = draw_figures(cells, out)

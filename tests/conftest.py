@@ -16,7 +16,9 @@ in the suite is between programs compiled alike or against tolerances, and
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
+from pathlib import Path
 
 import jax
 import pytest
@@ -42,3 +44,7 @@ def subprocess_env() -> dict[str, str]:
     env["JAX_COMPILATION_CACHE_DIR"] = _CACHE
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
+# The experiments' scripts import their sibling modules (protocol, ledger, ...) as a script
+# run from experiments/ would.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))

@@ -1,5 +1,7 @@
-"""Statistics over seeds: Student's t interval (:mod:`ccrjax.stats`), and the Welch test and
-bootstrap interval of ``experiments/tables.py``, against hand computations.
+"""Statistics over seeds (:mod:`ccrjax.stats`) and the selection rule (:mod:`ccrjax.selection`)
+against hand computations: Student's t interval (clipped to a metric's range), the Welch
+test, the headline's bootstrap interval, rliable's IQM and probability of improvement,
+the plateau check.
 
 The t quantiles are the printed table's: ``t_{0.975, 1} = 12.706``, ``t_{0.975, 4} = 2.776``
 (three decimals, hence ``rtol=2e-4``).
@@ -7,19 +9,24 @@ The t quantiles are the printed table's: ``t_{0.975, 1} = 12.706``, ``t_{0.975, 
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from ccrjax.stats import mean_ci, mean_ci_along, plateau
+from ccrjax.selection import SelectionRule, select
+from ccrjax.stats import (
+    iqm,
+    mean_ci,
+    mean_ci_along,
+    mean_relative_change,
+    plateau,
+    probability_of_improvement,
+    welch,
+)
 
 TABLE_RTOL = 2e-4
-SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
 
 
 def test_t_interval_of_two_values():
@@ -54,24 +61,31 @@ def test_one_value_has_no_interval_and_non_finite_values_show():
 
 def test_t_bands_along_an_axis():
     curves = np.array([[1.0, 10.0], [3.0, 10.0]])  # two seeds, two points
-    mean, half = mean_ci_along(curves, axis=0)
+    mean, low, high = mean_ci_along(curves, axis=0)
     np.testing.assert_allclose(mean, [2.0, 10.0])
-    np.testing.assert_allclose(half, [12.706, 0.0], rtol=TABLE_RTOL)
+    np.testing.assert_allclose(high - mean, [12.706, 0.0], rtol=TABLE_RTOL)
+    np.testing.assert_allclose(mean - low, [12.706, 0.0], rtol=TABLE_RTOL)
     five = np.array([[4.0], [1.0], [3.0], [5.0], [2.0]])
-    _, half = mean_ci_along(five, axis=0)
-    np.testing.assert_allclose(half, [2.776 / math.sqrt(2.0)], rtol=TABLE_RTOL)
-    _, half = mean_ci_along(curves[:1], axis=0)
-    np.testing.assert_array_equal(half, 0.0)
+    mean, _, high = mean_ci_along(five, axis=0)
+    np.testing.assert_allclose(high - mean, [2.776 / math.sqrt(2.0)], rtol=TABLE_RTOL)
+    mean, low, high = mean_ci_along(curves[:1], axis=0)
+    np.testing.assert_array_equal(low, mean)
+    np.testing.assert_array_equal(high, mean)
 
 
-# ---------------------------------------------------------------- experiments/tables.py
-@pytest.fixture(scope="module")
-def tables():
-    spec = importlib.util.spec_from_file_location("tables_for_stats", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+def test_intervals_are_clipped_to_the_metric_range():
+    # Success rates near 1: the raw interval 0.9925 +- 0.0152 would pass 1.
+    result = mean_ci([0.99, 1.0, 1.0, 0.98], bounds=(0.0, 1.0))
+    assert result["ci_high"] == 1.0
+    assert result["ci_low"] == pytest.approx(result["mean"] - result["half_width"])
+    assert result["half_width"] > 1.0 - result["mean"]  # the clip did something
+    # A danger count near 0 never gets a negative end.
+    result = mean_ci([0.0, 0.0, 0.02], bounds=(0.0, math.inf))
+    assert result["ci_low"] == 0.0 and result["ci_high"] > 0.02 / 3
+    curves = np.array([[0.0, 1.0], [0.1, 0.9]])
+    _, low, high = mean_ci_along(curves, axis=0, bounds=(0.0, 1.0))
+    assert low.min() >= 0.0 and high.max() <= 1.0
+    assert low[0] == 0.0 and high[1] == 1.0
 
 
 def welch_by_hand(a, b):
@@ -86,32 +100,35 @@ def welch_by_hand(a, b):
 STEADY = [1.0, 1.1, 0.9, 1.05, 0.95, 1.0, 1.02, 0.98, 1.01, 0.99]
 
 
-def test_welch_test_against_a_hand_computation(tables):
+def test_welch_test_against_a_hand_computation():
     # Unequal spreads: Welch (p = 0.118) is not significant where the pooled-variance
     # Student test would be (p = 0.0003).
     wide = [1.5, 1.2, 1.9]
     t, df, p = welch_by_hand(STEADY, wide)
     assert (t, df, p) == pytest.approx((-2.621, 2.028, 0.118), abs=1e-3)
     assert scipy_stats.ttest_ind(STEADY, wide, equal_var=True).pvalue < 0.001
-    assert tables.welch_significant(STEADY, wide) is False
+    assert welch(STEADY, wide)["significant"] is False
     # A clear difference is significant; p just above / below 0.05 decides.
     narrow = [1.5, 1.45, 1.55]
     assert welch_by_hand(STEADY, narrow)[2] < 0.01
-    assert tables.welch_significant(STEADY, narrow) is True
+    assert welch(STEADY, narrow)["significant"] is True
     decisions = []
     for shift in (0.6, 0.8, 0.85, 0.9, 1.0, 1.5):
         other = [1.0 + shift + x for x in (0.0, -0.3, 0.4)]
         expected = bool(welch_by_hand(STEADY, other)[2] < 0.05)
-        assert tables.welch_significant(STEADY, other) is expected, shift
+        assert welch(STEADY, other)["significant"] is expected, shift
         decisions.append(expected)
     assert decisions[0] is False and decisions[-1] is True  # the threshold is crossed
-    # Degenerate cases: fewer than two values; no spread at all.
-    assert tables.welch_significant([1.0], [2.0, 3.0]) is False
-    assert tables.welch_significant([1.0, 1.0], [2.0, 2.0]) is True
-    assert tables.welch_significant([1.0, 1.0], [1.0, 1.0]) is False
+    assert welch(STEADY, wide)["p"] == pytest.approx(p, rel=1e-9)
+    assert welch(STEADY, wide)["difference"] == pytest.approx(np.mean(STEADY) - np.mean(wide))
+    # Degenerate cases: fewer than two values is refused; no spread at all.
+    with pytest.raises(ValueError, match="at least 2 seeds"):
+        welch([1.0], [2.0, 3.0])
+    assert welch([1.0, 1.0], [2.0, 2.0])["significant"] is True
+    assert welch([1.0, 1.0], [1.0, 1.0])["significant"] is False
 
 
-def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation(tables):
+def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation():
     """Every base cell is constant 1 and every new cell holds the same 20 values (mean
     0.8, population sd ``sigma``): the headline reduction is ``1 - 0.8 = 0.2`` and its
     bootstrap distribution is the mean of 9 independent bootstrap means, close to normal
@@ -119,14 +136,10 @@ def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation(tab
     rng = np.random.default_rng(5)
     new = rng.normal(size=20)
     new = 0.8 + 0.1 * (new - new.mean()) / new.std()  # mean 0.8, population sd 0.1
-    cells = {}
-    for scenario in tables.SCENARIOS:
-        for algo in tables.ALGOS:
-            cells[(scenario, algo, "ccr")] = {"final": {"danger_frequency": list(new)}}
-            cells[(scenario, algo, "plain")] = {"final": {"danger_frequency": [1.0] * 5}}
-    pairs = len(tables.SCENARIOS) * len(tables.ALGOS)
-    result = tables.headline(cells, "danger_frequency", "ccr", "plain", -1, resamples=4000)
-    assert result["pairs"] == pairs == 9 and result["left_out"] == 0
+    pairs = 9
+    result = mean_relative_change([(new, np.ones(5))] * pairs + [(new, np.zeros(5))], -1,
+                                  resamples=4000)
+    assert result["pairs"] == pairs and result["left_out"] == 1  # a zero base is left out
     assert result["mean"] == pytest.approx(0.2, rel=1e-9)
     sd = 0.1 / math.sqrt(pairs * new.size)
     half = (result["ci_high"] - result["ci_low"]) / 2
@@ -153,3 +166,84 @@ def test_plateau_tells_a_rising_curve_from_a_flat_one():
         plateau(flat[:1])
     with pytest.raises(ValueError, match="points"):
         plateau(flat[:, :1])
+
+
+def test_rliable_iqm_is_the_mean_of_the_middle_half():
+    # 4 runs x 2 tasks: the 8 scores 1..8; the IQM drops the lowest and highest quarter
+    # (1, 2 and 7, 8) and averages 3..6 = 4.5. A method whose every score is equal has a
+    # zero-width interval.
+    scores = np.arange(1.0, 9.0).reshape(4, 2)
+    result = iqm({"a": scores, "flat": np.full((4, 2), 0.25)}, resamples=200)
+    assert result["a"]["iqm"] == pytest.approx(4.5)
+    assert result["a"]["ci_low"] <= 4.5 <= result["a"]["ci_high"]
+    assert result["a"]["ci_low"] < result["a"]["ci_high"]
+    assert result["flat"] == {"iqm": 0.25, "ci_low": 0.25, "ci_high": 0.25}
+    # Reproducible, and the caller's global generator is left alone.
+    np.random.seed(3)  # noqa: NPY002 (rliable draws from the legacy global generator)
+    expected_next = np.random.random()  # noqa: NPY002
+    np.random.seed(3)  # noqa: NPY002
+    assert iqm({"a": scores}, resamples=200) == iqm({"a": scores}, resamples=200)
+    assert np.random.random() == expected_next  # noqa: NPY002
+    with pytest.raises(ValueError, match="runs >= 2"):
+        iqm({"a": scores[:1]})
+
+
+def test_rliable_probability_of_improvement():
+    rng = np.random.default_rng(0)
+    low = rng.random((10, 9))
+    # Every run of x above every run of y on every task: P = 1; the reverse: 0.
+    assert probability_of_improvement(low + 2.0, low, resamples=20)["probability"] == 1.0
+    assert probability_of_improvement(low, low + 2.0, resamples=20)["probability"] == 0.0
+    # The same scores: ties count half.
+    same = probability_of_improvement(low, low, resamples=20)
+    assert same["probability"] == pytest.approx(0.5)
+    # Against the Mann-Whitney U statistic of each task, averaged.
+    other = rng.random((10, 9)) + 0.2
+    by_task = [scipy_stats.mannwhitneyu(low[:, k], other[:, k]).statistic / 100 for k in range(9)]
+    result = probability_of_improvement(low, other, resamples=50)
+    assert result["probability"] == pytest.approx(np.mean(by_task))
+    assert result["ci_low"] <= result["probability"] <= result["ci_high"]
+    with pytest.raises(ValueError, match="same tasks"):
+        probability_of_improvement(low, other[:, :3])
+
+
+def made_up_search(success, danger, reference_success, pairs=3, seeds=2):
+    """``[values, pairs, seeds]`` metrics whose means are ``success[v]`` and ``danger[v]`` in
+    every pair (the seeds spread symmetrically), and a reference of ``reference_success``."""
+    spread = np.array([-0.01, 0.01])[:seeds]
+
+    def cube(means):
+        return np.asarray(means)[:, None, None] + np.zeros((1, pairs, 1)) + spread
+
+    return ({"success_rate": cube(success), "danger_frequency": cube(danger)},
+            {"success_rate": np.full((pairs, seeds), reference_success)})
+
+
+def test_selection_rule_picks_the_safest_value_that_keeps_success():
+    values = [0.3, 1.0, 3.0, 10.0, 30.0, 100.0]
+    success = [0.90, 0.89, 0.86, 0.84, 0.60, 0.20]  # the reference: 0.90
+    danger = [0.30, 0.25, 0.20, 0.15, 0.05, 0.01]
+    metrics, reference = made_up_search(success, danger, 0.90)
+    result = select(SelectionRule(), values, metrics, reference)
+    # 10 is the last value within 5 points (0.84 < 0.85 is not): 3 is chosen.
+    assert result["eligible"] == [True, True, True, False, False, False]
+    assert result["value"] == 3.0 and not result["fallback"]
+    # A looser tolerance admits 10; success is averaged over pairs.
+    assert select(SelectionRule(tolerance=0.1), values, metrics, reference)["value"] == 10.0
+    # Ties in danger go to the smaller value.
+    metrics, reference = made_up_search(success, [0.3, 0.2, 0.2, 0.1, 0.0, 0.0], 0.90)
+    assert select(SelectionRule(), values, metrics, reference)["value"] == 1.0
+    # Nothing eligible: the value closest to the reference's success, flagged.
+    metrics, reference = made_up_search(success, danger, 0.99)
+    result = select(SelectionRule(), values, metrics, reference)
+    assert result["fallback"] and result["value"] == 0.3
+
+
+def test_selection_rule_refuses_unknown_metrics():
+    with pytest.raises(ValueError, match="objective must be one of"):
+        SelectionRule(objective="safety")
+    with pytest.raises(ValueError, match="tolerance"):
+        SelectionRule(tolerance=-0.1)
+    metrics, reference = made_up_search([0.9], [0.1], 0.9)
+    with pytest.raises(ValueError, match="no metric 'return'"):
+        select(SelectionRule(objective="return"), [1.0], metrics, reference)

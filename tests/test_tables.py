@@ -20,13 +20,17 @@ pytestmark = pytest.mark.slow
 SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
 
 
-@pytest.fixture(scope="module")
-def tables():
-    spec = importlib.util.spec_from_file_location("tables_script", SCRIPT)
+def load_module(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return load_module("tables_script", SCRIPT)
 
 
 @pytest.fixture(scope="module")
@@ -40,9 +44,11 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
     out = quick_run
     text = (out / "tables.md").read_text()
     for heading in ("Table I: dangerous-behaviour frequency", "Table II: success rate",
-                    "headline figures", "Do the paper's claims hold here?"):
+                    "headline figures", "Scorecard", "Aggregates over the 9",
+                    "Did the plain learners converge?"):
         assert heading in text
     assert "MADDPG+CCR" in text and "(40.92%)" in text  # the paper's number beside ours
+    assert "go-to-goal (reference)" in text and "oracle (reference)" in text
     result = json.loads((out / "tables.json").read_text())
     records = result["records"]
     assert len(records) == 27
@@ -53,7 +59,22 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
         assert len(danger["per_seed"]) == 2
         assert danger["mean"] == pytest.approx(sum(danger["per_seed"]) / 2)
         assert "paper" in danger and "paper" in record["success_rate"]
+        # Intervals within the metric's range; every cell knows where and how it was made.
+        for metric in ("danger_frequency", "success_rate"):
+            if record[metric]["ci_low"] is not None:
+                assert 0.0 <= record[metric]["ci_low"] <= record[metric]["ci_high"] <= 1.0
+        assert "plateaued" in record["return_plateau"]
+        assert record["device"].startswith("cpu") and record["program_seconds"] > 0
+        if record["variant"] == "ccr":
+            assert set(record["danger_frequency"]["welch"]) == {"plain", "pessimistic"}
     assert set(result["headlines"]) == set(tables.PAPER_HEADLINES)
+    for metric in ("danger_frequency", "success_rate"):
+        aggregate = result["aggregates"][metric]
+        assert set(aggregate["iqm"]) == set(tables.VARIANTS)
+        for value in aggregate["probability_of_improvement"].values():
+            assert 0.0 <= value["ci_low"] <= value["probability"] <= value["ci_high"] <= 1.0
+    assert len(result["controllers"]) == 6
+    assert result["sources"]["lam"] == "the quick mode's fixed value"
     # The claims follow from the records: CCR's mean danger below the other variant's,
     # counted cell by cell.
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in records}
@@ -69,7 +90,8 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
         assert [d["lower"] for d in claim["detail"]] == lower
         assert 0 <= claim["significant"] <= claim["cells"]
     for figure in ("curves_hidden_obstacle_maddpg.png", "trajectories_hidden_obstacle_maddpg.png",
-                   "distance_hidden_obstacle_maddpg.png"):
+                   "distance_hidden_obstacle_maddpg.png", "progress_hidden_obstacle.png",
+                   "progress_turbulence.png", "progress_strong_wind.png"):
         assert (out / figure).stat().st_size > 0
     cells = sorted((out / "cells").iterdir())
     assert len(cells) == 27 and not [c for c in cells if c.name.startswith(".")]
@@ -140,8 +162,21 @@ def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
     assert "stopped before the end" in (out / "tables.md").read_text()
 
 
-def test_quick_mode_refuses_to_write_over_the_committed_results(tables, capsys):
-    with pytest.raises(SystemExit) as exit_:
-        tables.main(["--quick"])
-    assert exit_.value.code == 2
-    assert "--quick needs --out" in capsys.readouterr().err
+def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
+    """Both searches over one scenario and learner: the cells, the choice by the rule,
+    the files; then a re-run that trains nothing."""
+    search = load_module("search_script", SCRIPT.parent / "search.py")
+    out = tmp_path / "search"
+    argv = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence", "--algos",
+            "iddpg", "--values", "0.1", "1", "--out", str(out)]
+    assert search.main(argv) == 0
+    result = json.loads((out / "search.json").read_text())
+    assert result["parameter"] == "penalty"
+    assert [row["value"] for row in result["aggregate"]] == [0.0, 0.1, 1.0]
+    assert result["selection"]["value"] in (0.1, 1.0)
+    assert result["pairs"][0]["device"].startswith("cpu")
+    for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
+        assert (out / name).stat().st_size > 0
+    capsys.readouterr()
+    assert search.main(argv) == 0
+    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err

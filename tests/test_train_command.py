@@ -242,6 +242,9 @@ def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(finished_run, t
         (["--maac-policy-lr", "0.01"], "--maac"),
         (["--algo", "maac", "--ddpg-tau", "0.1"], "--ddpg"),
         (["--resume"], "--out"),
+        # A budget that ends before learning starts (25,600 transitions) learns nothing.
+        (["--steps", "20000"], "(--steps) 20,000 ends before learning starts: at least 25,600"),
+        (["--steps", "30000", "--learning-starts", "40000"], "at least 40,000"),
     ],
 )
 def test_bad_command_lines_get_one_line_and_status_2(argv, fragment, tmp_path, capsys):

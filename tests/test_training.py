@@ -200,3 +200,24 @@ def test_a_run_that_turns_non_finite_is_stopped_with_its_iteration(tiny_program)
 def test_bad_config_is_refused_before_anything_compiles(changes, field):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(TINY, **changes)
+
+
+def test_a_budget_that_ends_before_learning_starts_is_refused():
+    """Learning starts after an absolute number of transitions per seed (25,600 by default,
+    whatever the learner, batch or episode length); a budget that never gets there is
+    refused, naming --steps and the minimum: the first whole iteration at which the buffer
+    holds ``learning_starts`` transitions."""
+    default = TrainConfig(algo="iddpg", scenario="nominal")
+    assert default.learning_starts == 25_600
+    assert dataclasses.replace(default, episode_length=50).learning_starts == 25_600
+    assert default.min_total_env_steps == 25_600  # 8 envs x 25 steps divides 25,600
+    with pytest.raises(ValueError, match=r"\(--steps\) 20,000 ends before learning starts: "
+                                         r"at least 25,600"):
+        TrainConfig(algo="maddpg", total_env_steps=20_000)
+    with pytest.raises(ValueError, match="at least 25,680"):  # 107 iterations of 8 x 30
+        TrainConfig(algo="maac", total_env_steps=25_600, episode_length=30)
+    assert TrainConfig(total_env_steps=25_600).min_total_env_steps == 25_600
+    # The tiny configuration of these tests learns from its 80th transition.
+    assert TINY.min_total_env_steps <= TINY.total_env_steps
+    with pytest.raises(ValueError, match="--steps"):
+        make_train(dataclasses.replace(TINY, learning_starts=10 * TINY.total_env_steps))

@@ -4,7 +4,7 @@ Each robot ``i`` has a deterministic actor ``mu_i(o_i) = tanh(pre_i(o_i))`` and 
 critic ``Q_i``. MADDPG (Lowe et al. 2017) gives ``Q_i`` every robot's observation
 and action, ``Q_i(o_1..o_N, a_1..a_N)``; independent DDPG (the paper's "DDPG")
 gives it only robot ``i``'s own, ``Q_i(o_i, a_i)``. Defaults are the original
-MADDPG code's (``facts.md`` section 2): 64-64 ReLU networks, gamma 0.95, Polyak
+MADDPG code's (``docs/references.md`` section 2): 64-64 ReLU networks, gamma 0.95, Polyak
 tau 0.01, batch 1024, gradients clipped to norm 0.5 per variable, one update every
 100 environment steps; two measured exceptions, documented at the fields: Adam's
 learning rate is 1e-3 (not 1e-2) and the exploration noise 0.3.

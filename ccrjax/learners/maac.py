@@ -37,7 +37,7 @@ Rewards are normalised per robot by the replay buffer's statistics before the up
 (:meth:`MAAC.normalise_rewards`; the original divides ``r - mean`` by the standard
 deviation of the rewards in its buffer).
 
-Defaults are the original's (``facts.md`` section 3). Known differences: the original
+Defaults are the original's (``docs/references.md`` section 3). Known differences: the original
 puts an affine-free ``BatchNorm1d`` in front of every encoder and policy; ccrjax's
 observations are already of order one (positions and distances in an arena a few
 units wide, unit directions), so the inputs go in as they are. Weights are initialised

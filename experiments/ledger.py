@@ -1,0 +1,148 @@
+"""What every long experiment shares: where committed results live and when they may be
+replaced, the record of each invocation, and progress with an estimate of the time left.
+
+An experiment trains programs (one scenario and learner each) and writes each finished
+program's cells atomically, so a killed invocation loses only the program in progress
+and the next one skips what is done. Every invocation is recorded in
+``<out>/invocations.json`` (command, commit, device, date, wall time, programs trained,
+whether it finished), rewritten after each program, so a killed one keeps its record.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from ccrjax import cli
+from ccrjax.run_folder import git_commit, write_atomic
+
+RESULTS = Path(__file__).resolve().parent / "results"
+INVOCATIONS = "invocations.json"
+
+
+def settings_record(settings: Any) -> dict[str, Any]:
+    """``settings`` (a dataclass) as it reads back from JSON (tuples become lists), so that
+    a record on disk compares equal to the settings that made it."""
+    return json.loads(json.dumps(dataclasses.asdict(settings)))
+
+
+def check_out(out: Path, force: bool) -> str | None:
+    """Why ``out`` may not be written (``None`` if it may): committed results under
+    ``experiments/results/`` are replaced only with ``--force``."""
+    try:
+        inside = out.resolve().is_relative_to(RESULTS.resolve())
+    except OSError:
+        return None
+    if inside and out.exists() and any(out.iterdir()) and not force:
+        return (f"--out {out} holds committed results; give --force to add to or replace "
+                "them (cells made with the same settings are kept)")
+    return None
+
+
+def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
+                    settings_of: Callable[[], Any]) -> tuple[Any, Ledger]:
+    """The start every experiment shares: ``settings_of()`` builds and validates the
+    settings (raising :class:`ccrjax.cli.UsageError` or ``ValueError``), ``out`` is
+    checked, and any problem ends the command with one line and status 2 before anything
+    compiles; then the compilation cache, the folder and this invocation's record."""
+    try:
+        settings = settings_of()
+        problem = check_out(out, force)
+        if problem:
+            raise cli.UsageError(problem)
+    except (cli.UsageError, ValueError) as error:
+        cli.fail(prog, str(error))
+    cli.enable_compilation_cache(cli.default_cache_dir())
+    out.mkdir(parents=True, exist_ok=True)
+    command = " ".join([prog, *(argv if argv is not None else sys.argv[1:])])
+    ledger = Ledger(out, settings, command)
+    ledger.record(0)
+    return settings, ledger
+
+
+def device_name() -> str:
+    device = jax.devices()[0]
+    return f"{device.platform}:{device.device_kind} x{jax.device_count()}"
+
+
+def log(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+class Ledger:
+    """The invocation records of ``out`` made with ``settings`` (a dataclass): the earlier
+    ones (dropped when the settings changed) and this one, kept up to date."""
+
+    def __init__(self, out: Path, settings: Any, command: str) -> None:
+        self.out = out
+        self.settings = settings_record(settings)
+        old = read_json(out / INVOCATIONS)
+        self.previous = (list(old.get("invocations", []))
+                         if old and old.get("settings") == self.settings else [])
+        self.start = time.perf_counter()
+        self.current = {"command": command, "commit": git_commit(), "device": device_name(),
+                        "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+                        "finished": False, "programs_trained": 0, "wall_time_s": 0.0}
+
+    @property
+    def invocations(self) -> list[dict[str, Any]]:
+        return [*self.previous, self.current]
+
+    def record(self, trained: int, finished: bool = False) -> None:
+        self.current.update(wall_time_s=time.perf_counter() - self.start,
+                            programs_trained=trained, finished=finished)
+        write_atomic(self.out / INVOCATIONS,
+                     json.dumps({"settings": self.settings, "invocations": self.invocations},
+                                indent=1) + "\n")
+
+
+def duration(seconds: float) -> str:
+    seconds = max(0, int(round(seconds)))
+    hours, rest = divmod(seconds, 3600)
+    minutes, seconds = divmod(rest, 60)
+    return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{seconds:02d}s"
+
+
+class Progress:
+    """Progress across programs of unequal cost, with an estimate of the time left.
+
+    Each program has a cost in work units (runs x environment steps) and a kind (its
+    learner); the seconds per unit of a kind are measured on its programs so far (else
+    on every program so far), and the time left is the remaining units at those rates.
+    """
+
+    def __init__(self, programs: list[tuple[str, str, float]]) -> None:
+        self.programs = programs  # (name, kind, units)
+        self.done: list[tuple[str, float, float]] = []  # (kind, units, seconds)
+        self.start = time.perf_counter()
+
+    def rate(self, kind: str) -> float | None:
+        same = [(u, s) for k, u, s in self.done if k == kind] or [(u, s) for _, u, s in self.done]
+        units = sum(u for u, _ in same)
+        return sum(s for _, s in same) / units if units else None
+
+    def finished(self, index: int, seconds: float) -> str:
+        """Records program ``index`` as done in ``seconds``; returns the progress line."""
+        name, kind, units = self.programs[index]
+        self.done.append((kind, units, seconds))
+        left = self.programs[index + 1:]
+        estimate = 0.0
+        for _, other_kind, other_units in left:
+            estimate += (self.rate(other_kind) or 0.0) * other_units
+        elapsed = time.perf_counter() - self.start
+        return (f"[{index + 1}/{len(self.programs)}] {name}: {duration(seconds)}; elapsed "
+                f"{duration(elapsed)}, about {duration(estimate)} left")

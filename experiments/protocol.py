@@ -1,0 +1,54 @@
+"""The experimental protocol of the tables and the searches, in one place (docs/protocol.md).
+
+Fixed before any search or table run: the seeds of each purpose (disjoint), the budgets
+(chosen on the plain learners only), the searched values, the selection rule, and the
+evaluation settings. ``experiments/search.py`` and ``experiments/tables.py`` read them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ccrjax.learners.ddpg import DDPGConfig
+from ccrjax.learners.maac import MAACConfig
+from ccrjax.selection import SelectionRule
+from ccrjax.training import TrainConfig
+
+# Seeds: the tables' seeds never select a hyperparameter and never choose a budget.
+TABLE_SEEDS = tuple(range(0, 10))
+SELECTION_SEEDS = (100, 101, 102)
+BUDGET_SEED_OFFSET = 200  # experiments/budgets.py
+
+# Environment steps per run, per learner, chosen on the plain learners only
+# (experiments/budgets.py, seeds 200-202, on an H100 before the obstacle's corner fix):
+# at 3M, IDDPG and MADDPG had plateaued in strong wind (from 2.75-3M) and IDDPG on the
+# obstacle (2.5M); MADDPG on the obstacle and both in turbulence were still creeping up.
+# MAAC at 2M had plateaued in turbulence and wind but not on the obstacle. Every table
+# cell records whether its plain learner's return plateaued at this budget on the
+# tables' seeds, and the README says where it did not.
+BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
+EVAL_EVERY = 100_000
+EVAL_EPISODES = 64
+
+# The searches: the same number of values, spanning more than two orders of magnitude,
+# the same seeds and budgets; 0 (the plain learner) is trained beside them as the
+# rule's reference.
+LAMBDAS = (0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
+PENALTIES = (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)
+SEARCHED = {"ccr": ("lam", LAMBDAS), "pessimistic": ("penalty", PENALTIES)}
+RULE = SelectionRule(objective="danger_frequency", constraint="success_rate", tolerance=0.05)
+
+
+def quick(config: TrainConfig) -> TrainConfig:
+    """``config`` at a tiny size (2 environments of 10 steps, 8-unit networks, learning from
+    the 40th transition): the pipeline of an experiment in minutes, not its learning."""
+    return dataclasses.replace(
+        config, num_envs=2, episode_length=10, learning_starts=40,
+        ddpg=DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,), update_every=20),
+        maac=MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8, attention_heads=2,
+                        update_every=20, gradient_steps=1))
+
+
+QUICK_STEPS = 400
+QUICK_EVAL_EVERY = 200
+QUICK_EVAL_EPISODES = 4

@@ -1,0 +1,318 @@
+"""CCR's lambda and the pessimistic penalty, searched alike: ``make sweep``, ``make penalty-sweep``.
+
+    python experiments/search.py --variant ccr --out runs/search/ccr
+    python experiments/search.py --variant pessimistic --out runs/search/pessimistic
+    python experiments/search.py --variant ccr --quick --out /tmp/s     # tiny, for the tests
+
+Both searches follow one protocol (``docs/protocol.md``, ``experiments/protocol.py``),
+fixed before either ran: the same budget per learner, the same selection seeds (100-102,
+disjoint from the tables' 0-9), six values spanning more than two orders of magnitude,
+and the same selection rule (:mod:`ccrjax.selection`): the lowest mean danger among the
+values whose mean success is at most 5 points below the plain learner's, one value for
+every scenario and learner, as the paper chose one lambda.
+
+For every scenario and learner one vmapped program trains every value x seed, plus
+the value 0 (the plain learner: no penalty; for CCR the reward unchanged) on the same
+seeds, which is the rule's reference. Each finished program's cell is written to
+``<out>/cells/<scenario>-<algo>.json`` (per-seed final metrics and curves, whether the
+plain runs' return plateaued, wall time, device, commit); a re-run skips the cells made
+with the same settings. Then: ``search.json`` (everything, and the selected value),
+``search.md`` (a table per scenario and learner, the averages over them, the choice),
+``tradeoff.png`` (danger against success per value, averaged over the 9 pairs) and
+``tradeoff_pairs.png`` (one panel per pair).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import protocol
+from ledger import (
+    Progress,
+    device_name,
+    duration,
+    log,
+    open_experiment,
+    read_json,
+    settings_record,
+)
+
+from ccrjax import cli
+from ccrjax.paper import SCENARIOS
+from ccrjax.plots import draw_search_tradeoff
+from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
+from ccrjax.selection import select
+from ccrjax.stats import plateau
+from ccrjax.sweep import GridTraining, search_grid, search_rows, summarise
+from ccrjax.training import ALGOS, TrainConfig
+
+PROG = "python experiments/search.py"
+LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """What every cell of a search is trained with (a cell made otherwise is redone)."""
+
+    variant: str
+    values: tuple[float, ...]
+    seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
+    steps: int | None = None  # None: the protocol's budget of each learner
+    eval_every: int = protocol.EVAL_EVERY
+    eval_episodes: int = protocol.EVAL_EPISODES
+    scenarios: tuple[str, ...] = SCENARIOS
+    algos: tuple[str, ...] = ALGOS
+    quick: bool = False
+
+    def budget(self, algo: str) -> int:
+        return self.steps if self.steps is not None else protocol.BUDGETS[algo]
+
+    def config(self, scenario: str, algo: str) -> TrainConfig:
+        base = TrainConfig(algo=algo, scenario=scenario, variant=self.variant)
+        if self.quick:
+            base = protocol.quick(base)
+        return dataclasses.replace(base, total_env_steps=self.budget(algo),
+                                   eval_every=self.eval_every, eval_episodes=self.eval_episodes)
+
+    @property
+    def grid_values(self) -> list[float]:
+        """The reference 0 and the searched values."""
+        return [0.0, *self.values]
+
+
+def cell_path(out: Path, scenario: str, algo: str) -> Path:
+    return out / "cells" / f"{scenario}-{algo}.json"
+
+
+def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
+    config = settings.config(scenario, algo)
+    values, seeds = settings.grid_values, list(settings.seeds)
+    name, grid_seeds, grid_values = search_grid(config, values, seeds)
+    training = GridTraining(config, grid_seeds, {name: grid_values})
+    training.compile(not settings.quick)
+    runs = training.run()
+    history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
+                                                      "danger_frequency")}
+    reference = runs.history["return"][np.asarray(grid_values) == 0.0]
+    try:
+        levelled = plateau(reference)
+    except ValueError as error:  # too few evaluations to tell
+        levelled = {"plateaued": None, "why": str(error)}
+    return {
+        "scenario": scenario, "algo": algo, "settings": settings_record(settings),
+        "parameter": name, "grid_seeds": grid_seeds, "grid_values": grid_values,
+        "rows": search_rows(runs, values, grid_values, seeds),
+        "env_steps": runs.history["env_steps"][0].tolist(), "history": history,
+        "plain_return_plateau": levelled,
+        "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
+        "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+    }
+
+
+def plan(settings: Settings, out: Path) -> tuple[dict, list[tuple[str, str]], Progress]:
+    """The finished cells by (scenario, algo), the pairs still to train, and their progress
+    tracker."""
+    pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
+    cells, todo = {}, []
+    for scenario, algo in pairs:
+        cell = read_json(cell_path(out, scenario, algo))
+        if cell and cell.get("settings") == settings_record(settings):
+            cells[(scenario, algo)] = cell
+        else:
+            todo.append((scenario, algo))
+    runs = len(settings.grid_values) * len(settings.seeds)
+    log(f"{len(pairs) - len(todo)} of {len(pairs)} programs already done; {len(todo)} to train "
+        f"({len(settings.grid_values)} values x {len(settings.seeds)} seeds = {runs} runs each, "
+        f"on {device_name()})")
+    progress = Progress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
+    (out / "cells").mkdir(parents=True, exist_ok=True)
+    return cells, todo, progress
+
+
+def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
+    """Per value, each seed's metric averaged over the pairs, then the mean and interval
+    over seeds (the points of ``tradeoff.png``)."""
+    rows = []
+    for index, value in enumerate(settings.grid_values):
+        row: dict[str, Any] = {"value": value, "seeds": list(settings.seeds)}
+        for metric in EVAL_METRICS:
+            per_pair = np.array([cell["rows"][index][metric]["per_seed"]
+                                 for cell in cells.values()])  # [pairs, seeds]
+            row[metric] = summarise(per_pair.mean(axis=0), metric)
+        rows.append(row)
+    return rows
+
+
+def selection(settings: Settings, cells: dict) -> dict[str, Any]:
+    metrics = {m: np.array([[cell["rows"][i][m]["per_seed"] for cell in cells.values()]
+                            for i in range(1, len(settings.grid_values))])
+               for m in EVAL_METRICS}  # [values, pairs, seeds]
+    reference = {m: np.array([cell["rows"][0][m]["per_seed"] for cell in cells.values()])
+                 for m in EVAL_METRICS}
+    return select(protocol.RULE, settings.values, metrics, reference)
+
+
+def _cell_text(stats: dict, percent: bool) -> str:
+    scale, unit = (100.0, "%") if percent else (1.0, "")
+    text = f"{stats['mean'] * scale:.1f}{unit}"
+    if stats.get("ci_low") is not None:
+        text += f" [{stats['ci_low'] * scale:.1f}, {stats['ci_high'] * scale:.1f}]"
+    return text
+
+
+def rows_table(rows: list[dict], parameter: str, chosen: float | None = None) -> list[str]:
+    lines = [f"| {parameter} | danger frequency | success rate | final distance | return |",
+             "|---|---|---|---|---|"]
+    for row in rows:
+        mark = " (plain)" if row["value"] == 0 else (" **chosen**" if row["value"] == chosen
+                                                       else "")
+        lines.append(f"| {row['value']:g}{mark} | {_cell_text(row['danger_frequency'], True)} | "
+                     f"{_cell_text(row['success_rate'], True)} | "
+                     f"{_cell_text(row['target_distance'], False)} | "
+                     f"{_cell_text(row['return'], False)} |")
+    return lines
+
+
+def search_markdown(result: dict) -> str:
+    settings, chosen = result["settings"], result["selection"]
+    parameter = result["parameter"]
+    lines = [
+        f"# Search of {parameter} ({settings['variant']})",
+        "",
+        f"Selection seeds {settings['seeds']}; budgets per learner "
+        f"{result['budgets']}; evaluation every {settings['eval_every']:,} steps, "
+        f"{settings['eval_episodes']} episodes per seed; mean and 95% CI over seeds (Student "
+        "t, clipped to each metric's range). Made by:",
+        "",
+        *(f"* `{run['command']}` at `{run['commit']}` on {run['device']}, {run['date']}: "
+          f"{run['programs_trained']} program(s), {duration(run['wall_time_s'])}"
+          + ("" if run["finished"] else " (stopped before the end)")
+          for run in result["invocations"]),
+        "",
+        f"**Rule** (fixed before the search): {chosen['rule']}.",
+        "",
+        f"**Chosen: {parameter} = {chosen['value']:g}**"
+        + (" (no value met the rule: the one closest to plain's success)"
+           if chosen["fallback"] else "") + ".",
+        "",
+        "## Averaged over the scenario x learner pairs",
+        "",
+        *rows_table(result["aggregate"], parameter, chosen["value"]),
+        "",
+    ]
+    for pair in result["pairs"]:
+        flag = pair["plain_return_plateau"].get("plateaued")
+        lines += [f"## {pair['scenario']}, {LEARNER_NAMES[pair['algo']]}",
+                  "",
+                  f"Plain return plateaued at this budget: {flag}; program: "
+                  f"{duration(pair['train_s'])} training, {duration(pair['compile_s'])} "
+                  f"compiling on {pair['device']} at `{pair['commit']}`.",
+                  "", *rows_table(pair["rows"], parameter, chosen["value"]), ""]
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = cli.Parser(prog=PROG, description="Search CCR's lambda or the pessimistic penalty "
+                        "over every scenario and learner under one protocol and rule.")
+    parser.add_argument("--variant", choices=sorted(protocol.SEARCHED), required=True,
+                        help="ccr (lambda) or pessimistic (penalty)")
+    parser.add_argument("--values", type=cli.float_in(0.0, low_open=True), nargs="+",
+                        default=None, help="searched values, > 0 (default: the protocol's six "
+                        "of the variant); 0, the plain learner, is always trained beside them")
+    parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=None,
+                        help="seeds per value, at least 2 (default: "
+                        f"{len(protocol.SELECTION_SEEDS)}, the selection seeds from 100)")
+    parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.SELECTION_SEEDS[0],
+                        help="first seed (default: %(default)s; the tables use 0-9)")
+    parser.add_argument("--steps", type=cli.positive_int, default=None,
+                        help="environment steps per run for every learner (default: the "
+                        f"protocol's budgets {protocol.BUDGETS})")
+    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+                        help="scenarios (default: all three)")
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
+                        help="learners (default: all three)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a tiny budget and tiny networks: the pipeline in minutes")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results folder (default: runs/search/<variant>; committed results "
+                        "go to experiments/results/search/<variant>)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
+    return parser
+
+
+def settings_from(args: argparse.Namespace) -> Settings:
+    _, default_values = protocol.SEARCHED[args.variant]
+    values = tuple(sorted({float(v) for v in (args.values or default_values)}))
+    fields: dict[str, Any] = {"variant": args.variant, "values": values,
+                              "scenarios": tuple(dict.fromkeys(args.scenarios)),
+                              "algos": tuple(dict.fromkeys(args.algos))}
+    if args.quick:
+        fields.update(quick=True, steps=protocol.QUICK_STEPS,
+                      eval_every=protocol.QUICK_EVAL_EVERY,
+                      eval_episodes=protocol.QUICK_EVAL_EPISODES)
+    if args.steps is not None:
+        fields["steps"] = args.steps
+    count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
+    fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
+    if set(fields["seeds"]) & set(protocol.TABLE_SEEDS) and not args.quick:
+        raise cli.UsageError(f"--seed-offset {args.seed_offset} overlaps the tables' seeds "
+                             f"{protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]}: selection "
+                             "seeds must be disjoint from them")
+    return Settings(**fields)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = args.out or Path("runs/search") / args.variant
+
+    def settings_of() -> Settings:
+        settings = settings_from(args)
+        for scenario in settings.scenarios:  # every configuration validated before compiling
+            for algo in settings.algos:
+                settings.config(scenario, algo)
+        return settings
+
+    settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
+    cells, todo, progress = plan(settings, out)
+    for index, (scenario, algo) in enumerate(todo):
+        cell = train_cell(settings, scenario, algo)
+        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        cells[(scenario, algo)] = cell
+        ledger.record(index + 1)
+        log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
+    ledger.record(len(todo), finished=True)
+    ordered = {pair: cells[pair] for pair in
+               [(s, a) for s in settings.scenarios for a in settings.algos]}
+    parameter, _ = protocol.SEARCHED[settings.variant]
+    result = {
+        "settings": settings_record(settings), "parameter": parameter,
+        "budgets": {a: settings.budget(a) for a in settings.algos},
+        "invocations": ledger.invocations,
+        "selection": selection(settings, ordered),
+        "aggregate": aggregate_rows(settings, ordered),
+        "pairs": [{k: cell[k] for k in ("scenario", "algo", "rows", "plain_return_plateau",
+                                         "train_s", "compile_s", "device", "commit")}
+                  for cell in ordered.values()],
+    }
+    write_atomic(out / "search.json", json.dumps(result, indent=1) + "\n")
+    write_atomic(out / "search.md", search_markdown(result))
+    title = f"{settings.variant}: averaged over {len(ordered)} scenario x learner pair(s)"
+    draw_search_tradeoff({title: result["aggregate"]}, parameter, out / "tradeoff.png")
+    draw_search_tradeoff({f"{s}, {LEARNER_NAMES[a]}": cell["rows"]
+                          for (s, a), cell in ordered.items()}, parameter,
+                         out / "tradeoff_pairs.png")
+    print(search_markdown(result))
+    print(f"chose {parameter} = {result['selection']['value']:g}; wrote {out / 'search.md'}, "
+          f"search.json, tradeoff.png, tradeoff_pairs.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
