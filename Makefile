@@ -42,6 +42,7 @@ lint: install
 bench: install
 	$(PY) benchmarks/env_throughput.py
 	$(PY) benchmarks/train_throughput.py --variants plain ccr
+	$(PY) benchmarks/replay_compare.py
 
 # The searches of docs/protocol.md: CCR's lambda and the pessimistic penalty, alike, one
 # vmapped program per scenario and learner, into runs/search/<variant> unless SWEEP_ARGS

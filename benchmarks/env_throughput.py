@@ -29,8 +29,8 @@ import jax
 # Runs from a checkout without installing: make the repository importable.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from ccrjax.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv, random_actions  # noqa: E402
-from ccrjax.scenarios import SCENARIOS  # noqa: E402
+from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv, random_actions  # noqa: E402
+from ccrjax.envs.scenarios import SCENARIOS  # noqa: E402
 
 DEFAULT_SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 DEFAULT_ENVS = (1024, 4096, 16384)
@@ -83,7 +83,7 @@ def make_rollout(
 ) -> Callable[[Any, jax.Array], Any]:
     """A jitted ``(state, key) -> state`` running ``steps`` random steps in one scan.
 
-    ``sampler``: ``"ccrjax"`` draws actions with :func:`ccrjax.env.random_actions`
+    ``sampler``: ``"ccrjax"`` draws actions with :func:`ccrjax.envs.env.random_actions`
     (16-bit uniform, one 32-bit random word per robot); ``"uniform"`` with
     ``jax.random.uniform`` (one 32-bit word per component, about twice the cost of
     the random numbers, a visible share of a step on CPU).

@@ -13,13 +13,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
+import os
+import re
 import sys
 import typing
 from collections.abc import Callable, Iterable
 from typing import Any, NoReturn
 
-from ccrjax.learners.base import in_interval, interval_text
+import jax
+
+from ccrjax.checks import in_interval, interval_text
 
 USAGE_ERROR = 2
 
@@ -124,6 +129,24 @@ def _converter(annotation: Any, default: Any) -> tuple[Callable[[str], Any], str
     raise TypeError(f"no command-line type for {annotation!r}")
 
 
+def field_help(cls: type) -> dict[str, str]:
+    """Each field's one-line description, from its comment in the class's source: the
+    comment on the field's line, else the comment block just above it (first sentence)."""
+    helps: dict[str, str] = {}
+    block: list[str] = []
+    for line in inspect.getsource(cls).splitlines():
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            block.append(stripped.lstrip("#").strip())
+            continue
+        match = re.match(r"^\s+(\w+)\s*:[^=]*=[^#]*(?:#\s*(.*))?$", line)
+        if match and match.group(1) in {f.name for f in dataclasses.fields(cls)}:
+            text = match.group(2) or " ".join(block)
+            helps[match.group(1)] = re.split(r"(?<=[.;])\s", text, maxsplit=1)[0].rstrip(".;")
+        block = []
+    return helps
+
+
 def add_dataclass_options(
     parser: argparse.ArgumentParser, cls: type, prefix: str, title: str,
     exclude: Iterable[str] = (),
@@ -136,6 +159,7 @@ def add_dataclass_options(
     """
     group = parser.add_argument_group(title)
     hints = typing.get_type_hints(cls)
+    helps = field_help(cls)
     for field in dataclasses.fields(cls):
         if field.name in exclude:
             continue
@@ -148,7 +172,7 @@ def add_dataclass_options(
             type=convert,
             default=None,
             metavar=metavar,
-            help=f"(default: {shown})",
+            help=f"{helps.get(field.name, field.name.replace('_', ' '))} (default: {shown})",
         )
 
 
@@ -164,7 +188,6 @@ def dataclass_overrides(args: argparse.Namespace, prefix: str) -> dict[str, Any]
 
 def default_cache_dir() -> str:
     """``$XDG_CACHE_HOME/ccrjax/xla`` (``~/.cache/ccrjax/xla`` by default)."""
-    import os
 
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return os.path.join(base, "ccrjax", "xla")
@@ -178,9 +201,7 @@ def enable_compilation_cache(directory: str | None) -> None:
     program is the same executable, so results are identical with or without the cache.
     A folder that cannot be created just means no cache.
     """
-    import os
 
-    import jax
 
     if directory is None or jax.config.jax_compilation_cache_dir:
         return

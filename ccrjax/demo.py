@@ -18,11 +18,12 @@ from typing import NoReturn
 
 import jax
 
-from ccrjax.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv
-from ccrjax.render import EpisodeRecord, animate_episode, draw_episode, record_episode
+from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv
+from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.viz.render import EpisodeRecord, animate_episode, draw_episode, record_episode
 
 # The order in which scenarios are run and printed.
-DEMO_SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
+DEMO_SCENARIOS = tuple(SCENARIOS)
 
 
 class _Parser(argparse.ArgumentParser):

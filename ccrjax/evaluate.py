@@ -23,8 +23,23 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 from ccrjax import cli
 from ccrjax.cli import UsageError
+from ccrjax.run.checkpoint import CheckpointError, Checkpoints
+from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, summary_table, write_atomic
+from ccrjax.run.spec import RunSpec
+from ccrjax.run.stats import mean_ci
+from ccrjax.training import make_train
+from ccrjax.viz.episode_pictures import (
+    PICTURE_KEY,
+    record_trained_episode,
+    seed_slice,
+    write_episode_pictures,
+)
 
 PROG = "python -m ccrjax.evaluate"
 EVALUATION_STREAM = 0xE7A1  # folded into --seed: episodes no training evaluation has seen
@@ -44,16 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) -> int:
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
 
-    from ccrjax.checkpoint import CheckpointError, Checkpoints
-    from ccrjax.episode_pictures import record_trained_episode, seed_slice, write_episode_pictures
-    from ccrjax.run_folder import EVAL_METRICS, RunFolder, fingerprint, write_atomic
-    from ccrjax.stats import mean_ci
-    from ccrjax.train import PICTURE_KEY, RunSpec, format_table
-    from ccrjax.training import make_train
 
     folder = RunFolder(folder_path)
     if not folder.holds_run():
@@ -100,7 +106,7 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
     write_atomic(folder.path / "evaluation.json", json.dumps(summary, indent=2) + "\n")
     print(f"{folder.path}: checkpoint {restored.step:,} steps per seed, "
           f"{episodes} fresh episodes per seed")
-    print(format_table(summary))
+    print(summary_table(summary))
     if pictures:
         key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
         record = record_trained_episode(program, seed_slice(state, 0), key)

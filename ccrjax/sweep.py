@@ -1,13 +1,7 @@
-"""Grids of training runs in one program, and ``python -m ccrjax.sweep``, a search of one pair.
+"""``python -m ccrjax.sweep``: a search of one scenario and learner, in one program.
 
-:func:`train_grid` trains every entry of a grid (a seed, and per-run transform
-numbers such as CCR's lambda or the pessimistic penalty) of one configuration as
-one vmapped program, sharded over every device (:mod:`ccrjax.grid`). It returns
-each run's evaluation history and its final policy (learner and transform
-state; the replay buffers stay inside the program). The experiments build on it:
-``experiments/search.py`` (the searches of every scenario and learner, ``make sweep``
-and ``make penalty-sweep``), ``experiments/tables.py``, ``experiments/behaviour.py``,
-and this module's command, one scenario and learner::
+``experiments/search.py`` (``make sweep``, ``make penalty-sweep``) searches every scenario
+and learner under the protocol and its selection rule; this command searches one::
 
     python -m ccrjax.sweep --variant ccr --scenario hidden_obstacle --algo maddpg \\
         --values 0 1 3 10 30 100 --seeds 3 --out runs/sweep
@@ -26,206 +20,27 @@ import argparse
 import dataclasses
 import json
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
-import numpy as np
 
 from ccrjax import cli
 from ccrjax.cli import UsageError
-from ccrjax.grid import GridProgram, stack_keys
-from ccrjax.plots import draw_search_tradeoff
-from ccrjax.rollout import run_episode
-from ccrjax.run_folder import METRIC_RANGES, POINT_METRICS, git_commit, write_atomic
-from ccrjax.stats import mean_ci
-from ccrjax.training import (
-    ALGOS,
-    LEARNING_STARTS,
-    NonFiniteTraining,
-    TrainConfig,
-    make_env,
-    make_train,
+from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.run.search import (
+    DEFAULT_VALUES,
+    SEARCHED_PARAMETER,
+    search_grid,
+    search_rows,
 )
+from ccrjax.training import ALGOS, LEARNING_STARTS, TrainConfig
+from ccrjax.training.grid import train_grid
+from ccrjax.viz.plots import draw_search_tradeoff
 
 PROG = "python -m ccrjax.sweep"
-# The run parameter each searchable variant takes, and the values searched by default
-# (the protocol's, docs/protocol.md).
-SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty"}
-DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
-                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)}
-SCENARIO_NAMES = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
-
-
-@dataclasses.dataclass
-class GridRuns:
-    """The results of :func:`train_grid`: entry ``g`` is ``seeds[g]`` with ``params[...][g]``."""
-
-    config: TrainConfig
-    seeds: list[int]
-    params: dict[str, np.ndarray]  # [G] per transform parameter
-    history: dict[str, np.ndarray]  # [G, evaluations + 1] per metric (and env_steps)
-    policy: Any  # (learner state, transform state), leaves [G, ...]
-    episodes: dict[str, np.ndarray] | None  # recorded evaluation episodes, leaves [G, ...]
-    compile_s: float
-    run_s: float
-
-    @property
-    def final(self) -> dict[str, np.ndarray]:
-        """The last evaluation of every run, ``[G]`` per metric."""
-        return {name: values[:, -1] for name, values in self.history.items()}
-
-    def select(self, mask: np.ndarray) -> GridRuns:
-        """The runs where ``mask`` ``[G]`` holds."""
-        index = np.flatnonzero(mask)
-        return dataclasses.replace(
-            self,
-            seeds=[self.seeds[i] for i in index],
-            params={k: v[index] for k, v in self.params.items()},
-            history={k: v[index] for k, v in self.history.items()},
-            policy=jax.tree_util.tree_map(lambda x: x[index], self.policy),
-            episodes=None if self.episodes is None
-            else {k: v[index] for k, v in self.episodes.items()},
-        )
-
-
-class GridTraining:
-    """A grid of runs of one configuration, compiled and run as one sharded program.
-
-    Entry ``g`` trains with seed ``seeds[g]`` and the transform numbers ``params[name][g]``
-    (e.g. ``{"lam": [...]}``, ``{"penalty": [...]}``); the others take the configuration's
-    values. With ``record_episodes > 0`` the same program then runs that many fresh
-    evaluation episodes of every trained team (deterministic policies; the same starts
-    and hazards for every entry, drawn from ``record_key``) and returns what happened in
-    them (:attr:`GridRuns.episodes`). :meth:`compile` and :meth:`run` are separate so
-    that a caller can compile the next grid while this one trains.
-    """
-
-    def __init__(
-        self,
-        config: TrainConfig,
-        seeds: Sequence[int],
-        params: dict[str, Sequence[float]] | None = None,
-        *,
-        record_episodes: int = 0,
-        record_key: jax.Array | None = None,
-    ) -> None:
-        self.config = config
-        self.seeds = [int(s) for s in seeds]
-        program = make_train(config)
-        defaults = program.default_transform_params()
-        given = {k: np.asarray(v, np.float32) for k, v in (params or {}).items()}
-        for name, values in given.items():
-            if name not in defaults:
-                raise ValueError(f"variant {config.variant!r} takes the run parameters "
-                                 f"{sorted(defaults)}, not {name!r}")
-            if values.shape != (len(self.seeds),):
-                raise ValueError(f"params[{name!r}] must hold one value per seed "
-                                 f"({len(self.seeds)})")
-        self.params = {name: given.get(name, np.full(len(self.seeds), value, np.float32))
-                       for name, value in defaults.items()}
-        self.inputs = {"key": np.asarray(stack_keys(self.seeds)), "params": self.params}
-        record_env = make_env(config, record_episodes) if record_episodes else None
-        record_key = jax.random.PRNGKey(0) if record_key is None else record_key
-
-        def one_run(entry: dict[str, Any]):
-            state, history = program.train(entry["key"], entry["params"])
-            out = {"policy": (state.learner, state.transform), "history": history,
-                   "nonfinite": state.nonfinite_iteration}
-            if record_env is not None:
-                def greedy(obs, step_key):
-                    return program.learner.act(state.learner, obs, step_key, False)
-
-                _, episode = run_episode(record_env, program.transform, state.transform,
-                                         greedy, program.learner.discrete, record_key)
-                out["episodes"] = {
-                    "position": episode.position,
-                    "danger": episode.danger,
-                    "success": episode.success[-1],  # [N, E]: in the target area at the end
-                    "hazard_centre": episode.hazard.centre,
-                    "hazard_half_extent": episode.hazard.half_extent,
-                    **episode.info,
-                }
-            return out
-
-        self.grid = GridProgram(one_run)
-        self.compile_s = 0.0
-
-    def compile(self, optimize: bool = True) -> float:
-        """Compiles the program (thread-safe to call from a worker); returns the seconds.
-        ``optimize=False``: see :meth:`ccrjax.grid.GridProgram.compile`."""
-        start = time.perf_counter()
-        self.grid.compile(self.inputs, optimize)
-        self.compile_s = time.perf_counter() - start
-        return self.compile_s
-
-    def run(self) -> GridRuns:
-        """Trains every entry; raises :class:`ccrjax.training.NonFiniteTraining` if one went
-        non-finite."""
-        start = time.perf_counter()
-        out = self.grid(self.inputs)
-        run_s = time.perf_counter() - start
-        nonfinite = out["nonfinite"]
-        if np.any(nonfinite >= 0):
-            bad = int(np.flatnonzero(nonfinite >= 0)[0])
-            raise NonFiniteTraining(f"run {bad} (seed {self.seeds[bad]}) became non-finite at "
-                                    f"iteration {int(nonfinite[bad])}")
-        return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
-                        history={k: np.asarray(v) for k, v in out["history"].items()},
-                        policy=out["policy"], episodes=out.get("episodes"),
-                        compile_s=self.compile_s, run_s=run_s)
-
-
-def train_grid(
-    config: TrainConfig,
-    seeds: Sequence[int],
-    params: dict[str, Sequence[float]] | None = None,
-    *,
-    record_episodes: int = 0,
-    record_key: jax.Array | None = None,
-    log=None,
-) -> GridRuns:
-    """Compiles and runs a :class:`GridTraining` (see there)."""
-    training = GridTraining(config, seeds, params, record_episodes=record_episodes,
-                            record_key=record_key)
-    compile_s = training.compile()
-    if log:
-        log(f"  compiled in {compile_s:.1f} s ({training.grid.num_devices} device(s)); "
-            f"training {len(training.seeds)} run(s) ...")
-    return training.run()
-
-
-def summarise(values: np.ndarray, metric: str) -> dict[str, Any]:
-    """Per-seed values of ``metric`` with their mean and 95% interval (within its range)."""
-    return {"per_seed": [float(v) for v in values],
-            **mean_ci(values, bounds=METRIC_RANGES[metric])}
-
-
-def search_grid(config: TrainConfig, values: Sequence[float], seeds: Sequence[int]
-                ) -> tuple[str, list[int], list[float]]:
-    """The grid of a search of ``config.variant``'s run parameter (CCR's ``lam``, the
-    pessimistic ``penalty``): every value with every seed, values outer."""
-    name = SEARCHED_PARAMETER.get(config.variant)
-    if name is None:
-        raise ValueError(f"variant must be one of {sorted(SEARCHED_PARAMETER)} to search, "
-                         f"got {config.variant!r}")
-    grid_seeds = [int(s) for _ in values for s in seeds]
-    grid_values = [float(v) for v in values for _ in seeds]
-    return name, grid_seeds, grid_values
-
-
-def search_rows(runs: GridRuns, values: Sequence[float], grid_values: Sequence[float],
-                seeds: Sequence[int]) -> list[dict[str, Any]]:
-    """One row per value: the per-seed final metrics with their means and intervals."""
-    final = runs.final
-    rows = []
-    for value in values:
-        mask = np.asarray(grid_values) == float(value)
-        rows.append({"value": float(value), "seeds": list(seeds),
-                     **{m: summarise(final[m][mask], m) for m in POINT_METRICS}})
-    return rows
 
 
 # ---------------------------------------------------------------------------- the command
@@ -236,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--variant", choices=sorted(SEARCHED_PARAMETER), default="ccr",
                         help="what to search: ccr (lambda) or pessimistic (penalty) "
                         "(default: %(default)s)")
-    parser.add_argument("--scenario", choices=SCENARIO_NAMES, default="hidden_obstacle",
+    parser.add_argument("--scenario", choices=tuple(SCENARIOS), default="hidden_obstacle",
                         help="scenario (default: %(default)s)")
     parser.add_argument("--algo", choices=ALGOS, default="maddpg",
                         help="learner (default: %(default)s)")

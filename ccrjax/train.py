@@ -7,10 +7,10 @@
     python -m ccrjax.evaluate runs/my-run                    # fresh episodes of the result
 
 All ``--seeds`` seeds train at once in one compiled program (``jax.vmap`` over the
-training program of :mod:`ccrjax.training`). Python drives the outside: it runs
+training program of :mod:`ccrjax.training.program`). Python drives the outside: it runs
 the program one chunk at a time (``--eval-every`` environment steps, then an
 evaluation), writes each evaluation to ``metrics.csv`` and TensorBoard, saves
-checkpoints, and draws the pictures at the end (:mod:`ccrjax.run_folder` lists
+checkpoints, and draws the pictures at the end (:mod:`ccrjax.run.folder` lists
 the folder's files).
 
 A run stopped at any moment (Ctrl-C, SIGTERM, even SIGKILL) and resumed with
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import math
 import os
 import signal
@@ -34,70 +35,49 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
 from ccrjax import cli
+from ccrjax.agents import ALGOS
+from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.agents.maac import MAACConfig
 from ccrjax.cli import UsageError
+from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.run.checkpoint import CheckpointError, Checkpoints
+from ccrjax.run.folder import (
+    EVAL_METRICS,
+    POINT_METRICS,
+    TRAINING_COUNTS,
+    RunFolder,
+    environment_record,
+    fingerprint,
+    folder_bytes,
+    summary_table,
+    timestamp,
+)
+from ccrjax.run.policy import export_policy
+from ccrjax.run.spec import RunSpec
+from ccrjax.training import DEFAULT_BUDGET, TrainConfig, make_train
+from ccrjax.training.config import _nested_config_types
+from ccrjax.transforms import VARIANTS
+from ccrjax.viz.episode_pictures import (
+    PICTURE_KEY,
+    record_trained_episode,
+    seed_slice,
+    write_episode_pictures,
+)
+from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 
 PROG = "python -m ccrjax.train"
-SCENARIO_NAMES = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
-ALGO_NAMES = ("iddpg", "maddpg", "maac")
-VARIANT_NAMES = ("plain", "pessimistic", "ccr")
 INTERRUPTED = 130  # the shell's status for a run stopped by Ctrl-C
 NONFINITE = 1
-# Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
-PICTURE_KEY = 0x9E3779B1
-
-
-@dataclasses.dataclass(frozen=True)
-class RunSpec:
-    """A training run: the per-seed configuration and how the run is driven."""
-
-    train: Any  # TrainConfig
-    seeds: int = 1
-    seed_offset: int = 0
-    checkpoint_every: int = 100_000  # environment steps per seed between checkpoints
-    keep_checkpoints: int = 2
-
-    def __post_init__(self) -> None:
-        for name, low in (("seeds", 1), ("seed_offset", 0), ("checkpoint_every", 1),
-                          ("keep_checkpoints", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-        if self.seed_offset + self.seeds > 2**31:
-            raise ValueError("seed_offset + seeds must stay below 2**31")
-
-    @property
-    def seed_list(self) -> list[int]:
-        return [self.seed_offset + k for k in range(self.seeds)]
-
-    @property
-    def chunks_per_checkpoint(self) -> int:
-        return max(1, round(self.checkpoint_every / self.train.eval_every))
-
-    def to_dict(self) -> dict[str, Any]:
-        from ccrjax.training import config_to_dict
-
-        return {
-            "seeds": self.seeds,
-            "seed_offset": self.seed_offset,
-            "checkpoint_every": self.checkpoint_every,
-            "keep_checkpoints": self.keep_checkpoints,
-            "train": config_to_dict(self.train),
-        }
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RunSpec:
-        from ccrjax.training import config_from_dict
-
-        data = dict(data)
-        return cls(train=config_from_dict(data.pop("train")), **data)
 
 
 # ---------------------------------------------------------------------------- command line
 def build_parser() -> argparse.ArgumentParser:
-    from ccrjax.learners.ddpg import DDPGConfig
-    from ccrjax.learners.maac import MAACConfig
-    from ccrjax.training import DEFAULT_BUDGET
 
     parser = cli.Parser(
         prog=PROG,
@@ -107,12 +87,13 @@ def build_parser() -> argparse.ArgumentParser:
         "configuration (config.json) is used and options that contradict it are refused.",
     )
     run = parser.add_argument_group("the run")
-    run.add_argument("--scenario", choices=SCENARIO_NAMES, default=None,
+    run.add_argument("--scenario", choices=tuple(SCENARIOS), default=None,
                      help="emergency scenario (default: hidden_obstacle)")
-    run.add_argument("--algo", choices=ALGO_NAMES, default=None,
+    run.add_argument("--algo", choices=ALGOS, default=None,
                      help="learner (default: maddpg)")
-    run.add_argument("--variant", choices=VARIANT_NAMES, default=None,
-                     help="plain learner, the pessimistic baseline, or CCR (default: plain)")
+    run.add_argument("--variant", choices=VARIANTS, default=None,
+                     help="plain learner, the pessimistic baseline, or CCR "
+                     "(default: ccr, as make train)")
     run.add_argument("--lam", type=cli.non_negative_float, default=None,
                      help="CCR: weight lambda of the intrinsic reward (default: 30)")
     run.add_argument("--penalty", type=cli.non_negative_float, default=None,
@@ -166,7 +147,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _ccr_config_type() -> type | None:
-    from ccrjax.training import _nested_config_types
 
     return _nested_config_types().get("ccr")
 
@@ -174,9 +154,10 @@ def _ccr_config_type() -> type | None:
 def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     """The run the command line asks for: ``base`` (a resumed run's, or the defaults) with
     every option given on top. Raises ``ValueError`` for values the configuration refuses."""
-    from ccrjax.training import TrainConfig
 
-    train = base.train if base is not None else TrainConfig(scenario="hidden_obstacle")
+    # A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
+    train = base.train if base is not None else TrainConfig(scenario="hidden_obstacle",
+                                                            variant="ccr")
     fields: dict[str, Any] = {}
     for option, field in (("scenario", "scenario"), ("algo", "algo"), ("variant", "variant"),
                           ("penalty", "penalty"), ("num_envs", "num_envs"),
@@ -211,7 +192,6 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     if ddpg:
         fields["ddpg"] = dataclasses.replace(train.ddpg, **ddpg)
     if maac:
-        from ccrjax.learners.maac import MAACConfig
 
         current = fields.get("maac", train.maac) or MAACConfig()
         fields["maac"] = dataclasses.replace(current, **maac)
@@ -256,7 +236,6 @@ def check_writable(path: Path) -> None:
 def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
     """Checks the run folder against the command and returns it, the run, and (resuming)
     the saved configuration record."""
-    from ccrjax.run_folder import RunFolder, timestamp
 
     if args.resume and args.out is None:
         raise UsageError("--resume needs --out: the folder of the run to continue")
@@ -305,7 +284,6 @@ class Progress:
         self.last_time = time.perf_counter()
         self.last_steps = done_steps
         if bar:
-            from tqdm import tqdm
 
             self.bar = tqdm(total=total_steps, initial=done_steps, unit="step", unit_scale=True,
                             desc=f"training ({seeds} seed{'s' * (seeds > 1)}, steps per seed)",
@@ -317,11 +295,13 @@ class Progress:
         self.last_time, self.last_steps = now, steps
         if self.bar is not None:
             self.bar.set_postfix_str(
-                f"{rate:,.0f} env steps/s, success {success:.2f}, danger {danger:.3f}"
+                f"{rate:,.0f} env steps/s (all seeds), success {success:.2f}, "
+                f"danger {danger:.3f}"
             )
             self.bar.update(steps - self.bar.n)
         else:
-            print(f"steps {steps:,}/{self.total:,} per seed · {rate:,.0f} env steps/s · "
+            print(f"steps {steps:,}/{self.total:,} per seed · {rate:,.0f} env steps/s (all "
+                  "seeds) · "
                   f"success {success:.3f} · danger {danger:.3f}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
@@ -384,7 +364,6 @@ class StopRequest:
 
 def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
     """One ``metrics.csv`` row per seed from an evaluation point (leaves ``[seeds]``)."""
-    from ccrjax.run_folder import POINT_METRICS
 
     rows = []
     for index, seed in enumerate(seeds):
@@ -396,8 +375,6 @@ def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str,
 
 
 def state_bytes(abstract_state: Any) -> int:
-    import jax
-    import numpy as np
 
     return sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize
                for x in jax.tree_util.tree_leaves(abstract_state))
@@ -412,14 +389,6 @@ def physical_memory() -> int | None:
 
 def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: bool) -> int:
     """Trains (or resumes) the run in ``folder``; returns the exit status."""
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
-
-    from ccrjax.checkpoint import CheckpointError, Checkpoints
-    from ccrjax.run_folder import environment_record, fingerprint
-    from ccrjax.training import make_train
-
     config = spec.train
     program = make_train(config)
     seeds = spec.seed_list
@@ -439,8 +408,11 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
     if record is None:  # a new run
         record = {**environment_record(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "command": " ".join([PROG, *sys.argv[1:]]) if sys.argv else PROG,
-                  "fingerprint": run_fingerprint, "run": run_record}
+                  "fingerprint": run_fingerprint, "run": run_record,
+                  "schedule": config.schedule()}
         folder.write_config(record)
+    for note in config.schedule()["notes"]:  # nothing is rounded silently
+        print(f"note: {note}", file=sys.stderr, flush=True)
     checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
     total_chunks = program.num_evaluations
     chunk_steps = config.iterations_per_eval * config.steps_per_iteration
@@ -553,7 +525,6 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
 
 
 def _eval_scalars(row: dict[str, Any]) -> dict[str, float]:
-    from ccrjax.run_folder import EVAL_METRICS, TRAINING_COUNTS
 
     scalars = {f"eval/{name}": row[name] for name in EVAL_METRICS}
     for name in TRAINING_COUNTS:
@@ -564,11 +535,6 @@ def _eval_scalars(row: dict[str, Any]) -> dict[str, float]:
 def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
            history: list[dict[str, Any]], wall: float) -> None:
     """The summary, the curves and the episode pictures of a finished run."""
-    import jax
-
-    from ccrjax.episode_pictures import record_trained_episode, seed_slice, write_episode_pictures
-    from ccrjax.plots import Curves, curves_from_rows, draw_curves
-
     final_steps = history[-1]["env_steps"]
     final_rows = [row for row in history if row["env_steps"] == final_steps]
     summary = folder.write_summary(final_rows, {"wall_time_s": wall})
@@ -582,35 +548,23 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
     record = record_trained_episode(program, seed_slice(state, 0), key)
     png, gif = write_episode_pictures(record, folder.path)
+    policy = export_policy(folder.path, program, state.learner, list(seeds))
     print_summary(summary, folder)
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
-    print(f"TensorBoard: tensorboard --logdir {folder.tensorboard_dir}")
+    print(f"policy: {policy} (ccrjax.load_policy({str(folder.path)!r}, seed={seeds[0]}))")
+    if importlib.util.find_spec("tensorboard") is not None:
+        print(f"TensorBoard: tensorboard --logdir {folder.tensorboard_dir}")
+    elif folder.tensorboard_dir.exists():
+        print(f"TensorBoard event files: {folder.tensorboard_dir} (to view them: "
+              "pip install -e '.[tensorboard]')")
 
 
 def print_summary(summary: dict[str, Any], folder: Any) -> None:
     seeds = summary["seeds"]
     print(f"\n{folder.path}: {summary['env_steps_per_seed']:,} environment steps per seed, "
-          f"{len(seeds)} seed(s), {summary['wall_time_s']:.0f} s")
-    print(format_table(summary))
-
-
-def format_table(summary: dict[str, Any]) -> str:
-    """The four metrics per seed, and their mean with 95% CI, as a text table."""
-    from ccrjax.run_folder import EVAL_METRICS
-
-    header = f"{'seed':>8} " + " ".join(f"{m:>18}" for m in EVAL_METRICS)
-    lines = [header, "-" * len(header)]
-    for seed, values in summary["per_seed"].items():
-        lines.append(f"{seed:>8} " + " ".join(f"{values[m]:18.4f}" for m in EVAL_METRICS))
-    cells = []
-    for m in EVAL_METRICS:
-        stats = summary["mean_ci95"][m]
-        half = stats["half_width"]
-        cells.append(f"{stats['mean']:.4f}" + (f" ± {half:.4f}" if half is not None else ""))
-    lines.append(f"{'mean':>8} " + " ".join(f"{c:>18}" for c in cells))
-    if len(summary["per_seed"]) > 1:
-        lines.append("(± is the 95% confidence interval of the mean over seeds, Student t)")
-    return "\n".join(lines)
+          f"{len(seeds)} seed(s), {summary['wall_time_s']:.0f} s; the folder holds "
+          f"{folder_bytes(folder.path) / 2**20:,.1f} MiB")
+    print(summary_table(summary))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

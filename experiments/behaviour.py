@@ -43,12 +43,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ccrjax.analysis import arrival_analysis, followers_closest
-from ccrjax.plots import draw_obstacle_distances
-from ccrjax.run_folder import git_commit
-from ccrjax.stats import mean_ci
-from ccrjax.sweep import train_grid
+from ccrjax.run.folder import git_commit
+from ccrjax.run.stats import mean_ci
 from ccrjax.training import TrainConfig
+from ccrjax.training.grid import train_grid
+from ccrjax.viz.analysis import arrival_analysis, followers_closest
+from ccrjax.viz.plots import draw_obstacle_distances
 
 
 def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach: float,

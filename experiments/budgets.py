@@ -9,7 +9,7 @@ decides the budget) in every scenario for ``--steps`` environment steps per seed
 ``--seeds`` seeds at once per scenario and learner (one vmapped program each, seeds
 200, 201, ... by default: disjoint from the tables' seeds 0-9 and the searches' selection
 seeds 100-102), and reports, for each candidate budget (every ``--candidate-every``
-steps), whether the evaluated return has plateaued by then (:func:`ccrjax.stats.plateau`:
+steps), whether the evaluated return has plateaued by then (:func:`ccrjax.run.stats.plateau`:
 the mean of the last 20% of evaluations lies within the 95% interval of the 20% before).
 The proposed budget of a scenario and learner is the smallest candidate from which on
 every larger candidate plateaus too. Writes ``budgets.json`` (the curves and the checks)
@@ -30,10 +30,10 @@ import numpy as np
 import protocol
 
 from ccrjax import cli
-from ccrjax.run_folder import git_commit, write_atomic
-from ccrjax.stats import plateau
-from ccrjax.sweep import train_grid
+from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.run.stats import plateau
 from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training.grid import train_grid
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 SEED_OFFSET = protocol.BUDGET_SEED_OFFSET

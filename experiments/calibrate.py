@@ -37,9 +37,9 @@ from typing import Any
 
 import jax
 
-from ccrjax.env import CCREnv
-from ccrjax.paper import PAPER
-from ccrjax.run_folder import git_commit, write_atomic
+from ccrjax.envs.env import CCREnv
+from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402

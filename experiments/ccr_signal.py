@@ -38,11 +38,11 @@ from typing import Any
 import jax
 import numpy as np
 
-from ccrjax.ccr.transform import CCR
-from ccrjax.env import CCREnv
-from ccrjax.rollout import run_episode
-from ccrjax.run_folder import git_commit, write_atomic
+from ccrjax.envs.env import CCREnv
+from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.training import TrainConfig, make_train
+from ccrjax.training.acting import run_episode
+from ccrjax.transforms.ccr.transform import CCR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_controllers import CONTROLLERS  # noqa: E402

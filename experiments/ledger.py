@@ -21,7 +21,7 @@ from typing import Any
 import jax
 
 from ccrjax import cli
-from ccrjax.run_folder import git_commit, write_atomic
+from ccrjax.run.folder import git_commit, write_atomic
 
 RESULTS = Path(__file__).resolve().parent / "results"
 INVOCATIONS = "invocations.json"

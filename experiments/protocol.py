@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from ccrjax.learners.ddpg import DDPGConfig
-from ccrjax.learners.maac import MAACConfig
-from ccrjax.selection import SelectionRule
+from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.agents.maac import MAACConfig
+from ccrjax.run.selection import SelectionRule
 from ccrjax.training import TrainConfig
 
 # Seeds: the tables' seeds never select a hyperparameter and never choose a budget.

@@ -16,7 +16,7 @@ pessimistic baseline) and the rows that bound what a learner can reach:
   hazard" success rule it scored 100% success and 0% danger).
 
 Every controller is ``(world, key) -> action float32[N, 2, B]`` (continuous
-actions) and runs through :func:`ccrjax.rollout.run_episode`, the loop and metrics
+actions) and runs through :func:`ccrjax.training.acting.run_episode`, the loop and metrics
 that evaluate the learners.
 """
 
@@ -27,8 +27,8 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from ccrjax.env import CCREnv, WorldState
-from ccrjax.rollout import episode_metrics, run_episode
+from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.training.acting import episode_metrics, run_episode
 from ccrjax.transforms import Plain
 
 # The PD gains: about the fastest arrival from 3 units away (19 steps) with an overshoot

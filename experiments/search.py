@@ -7,7 +7,7 @@
 Both searches follow one protocol (``docs/protocol.md``, ``experiments/protocol.py``),
 fixed before either ran: the same budget per learner, the same selection seeds (100-102,
 disjoint from the tables' 0-9), six values spanning more than two orders of magnitude,
-and the same selection rule (:mod:`ccrjax.selection`): the lowest mean danger among the
+and the same selection rule (:mod:`ccrjax.run.selection`): the lowest mean danger among the
 values whose mean success is at most 5 points below the plain learner's, one value for
 every scenario and learner, as the paper chose one lambda.
 
@@ -44,13 +44,14 @@ from ledger import (
 )
 
 from ccrjax import cli
-from ccrjax.paper import SCENARIOS
-from ccrjax.plots import draw_search_tradeoff
-from ccrjax.run_folder import EVAL_METRICS, git_commit, write_atomic
-from ccrjax.selection import select
-from ccrjax.stats import plateau
-from ccrjax.sweep import GridTraining, search_grid, search_rows, summarise
+from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
+from ccrjax.run.paper import SCENARIOS
+from ccrjax.run.search import search_grid, search_rows, summarise
+from ccrjax.run.selection import select
+from ccrjax.run.stats import plateau
 from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training.grid import GridTraining
+from ccrjax.viz.plots import draw_search_tradeoff
 
 PROG = "python experiments/search.py"
 LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}

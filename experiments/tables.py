@@ -12,7 +12,7 @@ steps), CCR's lambda and the pessimistic penalty as selected by their searches
 (``experiments/search.py``, on the disjoint selection seeds; ``--lam`` and ``--penalty``
 override). Per scenario and learner, two programs: plain and pessimistic together (plain
 is the pessimistic transform with penalty 0, exactly), and CCR; each trains all its
-runs at once, sharded over every device (:mod:`ccrjax.grid`); while one program trains,
+runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one program trains,
 the next one compiles.
 
 Cost. Measured per seed on this project's 2-core CPU (``benchmarks/train_throughput.py``,
@@ -25,7 +25,7 @@ Cells are resumable across invocations, so the grid can be spread over several.
 
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
-curves, whether the return plateaued (:func:`ccrjax.stats.plateau`), the behaviour
+curves, whether the return plateaued (:func:`ccrjax.run.stats.plateau`), the behaviour
 measurements, and the program's wall time, device and commit. A re-run skips the cells
 made with the same settings. Every invocation is recorded in ``<out>/invocations.json``
 (:mod:`ledger`). Progress lines estimate the time left across programs. Then:
@@ -73,13 +73,16 @@ from PIL import Image, ImageDraw, ImageFont
 from reference_controllers import evaluate_controller
 
 from ccrjax import cli
-from ccrjax.analysis import arrival_analysis, followers_closest
-from ccrjax.paper import PAPER, PAPER_HEADLINES, SCENARIOS
-from ccrjax.plots import Curves, draw_curves, draw_obstacle_distances, draw_progress_matched
-from ccrjax.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
-from ccrjax.run_folder import METRIC_RANGES, POINT_METRICS, git_commit, write_atomic
-from ccrjax.scenarios import Layout
-from ccrjax.stats import (
+from ccrjax.envs.scenarios import Layout
+from ccrjax.run.folder import (
+    METRIC_RANGES,
+    POINT_METRICS,
+    git_commit,
+    replacing,
+    write_atomic,
+)
+from ccrjax.run.paper import PAPER, PAPER_HEADLINES, SCENARIOS
+from ccrjax.run.stats import (
     iqm,
     mean_ci,
     mean_relative_change,
@@ -87,8 +90,11 @@ from ccrjax.stats import (
     probability_of_improvement,
     welch,
 )
-from ccrjax.sweep import GridRuns, GridTraining
 from ccrjax.training import ALGOS, TrainConfig, make_env
+from ccrjax.training.grid import GridRuns, GridTraining
+from ccrjax.viz.analysis import arrival_analysis, followers_closest
+from ccrjax.viz.plots import Curves, draw_curves, draw_obstacle_distances, draw_progress_matched
+from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
 
 PROG = "python experiments/tables.py"
 VARIANTS = ("plain", "pessimistic", "ccr")
@@ -286,7 +292,7 @@ def stats(values: list[float], metric: str) -> dict[str, Any]:
 def headline(cells, metric: str, new: str, base: str, sign: float,
              resamples: int = 2000, seed: int = 0) -> dict[str, Any]:
     """The paper's averaged relative change over the 9 scenario x learner pairs
-    (:func:`ccrjax.stats.mean_relative_change`)."""
+    (:func:`ccrjax.run.stats.mean_relative_change`)."""
     pairs = [(np.asarray(cells[(s, a, new)]["final"][metric]),
               np.asarray(cells[(s, a, base)]["final"][metric]))
              for s in SCENARIOS for a in ALGOS]
@@ -676,9 +682,8 @@ def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
             canvas.paste(image, (x, 40))
             draw.text((x + 20, 8), label, fill="black", font=font)
             x += image.width
-        temporary = path.with_name(f".{path.stem}.tmp.png")
-        canvas.save(temporary)
-        temporary.replace(path)
+        with replacing(path) as temporary:
+            canvas.save(temporary)
 
 
 # ---------------------------------------------------------------------------- command

@@ -1,4 +1,4 @@
-"""The behavioural analysis (:mod:`ccrjax.analysis`) on hand-built episodes: arrival order,
+"""The behavioural analysis (:mod:`ccrjax.viz.analysis`) on hand-built episodes: arrival order,
 closest approach, and the followers' closest approach counting only robots that succeeded."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ccrjax.analysis import arrival_analysis, followers_closest
+from ccrjax.viz.analysis import arrival_analysis, followers_closest
 
 
 def one_episode(tracks: list[list[float]], success: list[bool]) -> dict[str, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Tests of CCR (:mod:`ccrjax.ccr`): intrinsic reward, shared and smoothed scores, the
+"""Tests of CCR (:mod:`ccrjax.transforms.ccr`): intrinsic reward, shared and smoothed scores, the
 learned dynamics model on every scenario, the transform, its configuration, training.
 
 Arrays are batch-last, as in the environment: per robot ``[N, E]``, positions ``[N, 2, E]``.
@@ -16,7 +16,11 @@ import numpy as np
 import pytest
 from brax.envs.base import State
 
-from ccrjax.ccr import (
+from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.envs.env import CCREnv
+from ccrjax.training import TrainConfig, make_train
+from ccrjax.training.acting import run_episode, to_batch_major_obs, to_env_action
+from ccrjax.transforms.ccr import (
     CCR,
     CCRConfig,
     accumulate,
@@ -29,10 +33,6 @@ from ccrjax.ccr import (
     predict_targets,
     shared_scores,
 )
-from ccrjax.env import CCREnv
-from ccrjax.learners.ddpg import DDPGConfig
-from ccrjax.rollout import run_episode, to_batch_major_obs, to_env_action
-from ccrjax.training import TrainConfig, make_train
 
 
 def column(*values):
@@ -306,7 +306,7 @@ def random_discrete_actions(obs, key):
 
 
 def unjitted_episode(env, transform, state, act, key):
-    """:func:`ccrjax.rollout.run_episode` written out step by step: the transform runs
+    """:func:`ccrjax.training.acting.run_episode` written out step by step: the transform runs
     op by op (no jit), the environment through its own jitted reset and transition."""
     reset, transition = jax.jit(env.reset), jax.jit(env.transition)
     reset_key, key = jax.random.split(key)

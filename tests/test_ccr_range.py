@@ -1,12 +1,14 @@
-"""CCR in the code path training runs (:meth:`ccrjax.ccr.CCR.step`), robots placed by hand.
+"""CCR in the code path training runs (:meth:`ccrjax.transforms.ccr.CCR.step`), robots placed
+by hand.
 
 Four robots in two environments, some pairs within communication range and some out of it
 (robot 3 of environment 0 is out of everyone's range). The model is unfitted (no
 statistics: coefficients 0), so it predicts ``s_hat_{t+1} = (p_t, 0)`` and the raw score of
 a transition is ``|p_{t+1} - p_t|^2 + |v_{t+1}|^2``: by choosing the states we choose scores
 of order one. Three steps through the transform are compared with hand-computed smoothed
-scores and with the reference definitions :func:`ccrjax.ccr.shared_scores` and
-:func:`ccrjax.ccr.intrinsic_reward` (from positions), at a tolerance relative to the values.
+scores and with the reference definitions :func:`ccrjax.transforms.ccr.shared_scores` and
+:func:`ccrjax.transforms.ccr.intrinsic_reward` (from positions), at a tolerance relative to the
+values.
 Each step also checks that the fixture is sensitive: the same references with the range
 ignored give clearly different numbers.
 """
@@ -18,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.ccr import CCR, CCRConfig, intrinsic_reward, shared_scores
-from ccrjax.env import CCREnv
+from ccrjax.envs.env import CCREnv
+from ccrjax.transforms.ccr import CCR, CCRConfig, intrinsic_reward, shared_scores
 
 COMM_RANGE = 1.0
 WINDOW = 1  # the rolling mean runs over m + 1 = 2 transitions

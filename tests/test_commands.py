@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 
 from ccrjax import evaluate, train
-from ccrjax.checkpoint import Checkpoints
-from ccrjax.rollout import episode_metrics, run_episode
-from ccrjax.run_folder import EVAL_METRICS, RunFolder, fingerprint, read_metrics
-from ccrjax.stats import mean_ci
+from ccrjax.run.checkpoint import Checkpoints
+from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, read_metrics
+from ccrjax.run.stats import mean_ci
 from ccrjax.training import make_train
+from ccrjax.training.acting import episode_metrics, run_episode
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = [

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.learners.base import Transition, soft_update
-from ccrjax.learners.ddpg import DDPG, DDPGConfig
+from ccrjax.agents.ddpg import DDPG, DDPGConfig
+from ccrjax.agents.types import Transition, soft_update
 
 N, F, B = 3, 7, 16
 SMALL = DDPGConfig(actor_hidden=(8,), critic_hidden=(8,), batch_size=B)
@@ -82,7 +82,7 @@ def test_actor_loss_input_replaces_only_the_robots_own_action(learners):
 
 
 def np_mlp(params, x) -> np.ndarray:
-    """A ReLU :class:`~ccrjax.learners.networks.MLP` in numpy (one robot's parameters)."""
+    """A ReLU :class:`~ccrjax.agents.networks.MLP` in numpy (one robot's parameters)."""
     layers = params["params"]
     x = np.asarray(x, np.float64)
     for n in range(len(layers)):

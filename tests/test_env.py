@@ -1,4 +1,4 @@
-"""Tests of :class:`ccrjax.env.CCREnv`: registry, batching, determinism, auto-reset,
+"""Tests of :class:`ccrjax.envs.env.CCREnv`: registry, batching, determinism, auto-reset,
 start positions and targets, success, observation layout, jit, and input validation.
 
 Arrays are batch-last: obs ``[N, F, B]``, reward ``[N, B]``, continuous action ``[N, 2, B]``.
@@ -19,12 +19,12 @@ from brax.envs.base import State
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ccrjax.env import CCREnv, WorldState
-from ccrjax.learners.base import Transition
-from ccrjax.rollout import Episode, episode_metrics
-from ccrjax.scenarios import Hazard, Layout
-from ccrjax.scenarios.base import target_positions
-from ccrjax.world import rectangle_distance
+from ccrjax.agents.types import Transition
+from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.scenarios import Hazard, Layout
+from ccrjax.envs.scenarios.base import target_positions
+from ccrjax.envs.world import rectangle_distance
+from ccrjax.training.acting import Episode, episode_metrics
 
 NAMES = ["turbulence", "strong_wind", "hidden_obstacle", "nominal"]
 METRICS = ("danger", "success", "target_distance", "hazard_distance")
@@ -658,7 +658,7 @@ def test_discrete_actions_are_the_mpe_unit_forces():
 
 
 def test_random_actions_helper():
-    from ccrjax.env import random_actions as env_random_actions
+    from ccrjax.envs.env import random_actions as env_random_actions
 
     env = CCREnv("nominal", num_robots=N, num_envs=64)
     action = np.asarray(env_random_actions(jax.random.key(0, impl="rbg"), env))

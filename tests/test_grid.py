@@ -19,9 +19,9 @@ SCRIPT = textwrap.dedent(
     import json
     import jax
     import numpy as np
-    from ccrjax.grid import GridProgram, grid_mesh
-    from ccrjax.learners.ddpg import DDPGConfig
-    from ccrjax.sweep import GridTraining
+    from ccrjax.training.grid import GridProgram, grid_mesh
+    from ccrjax.agents.ddpg import DDPGConfig
+    from ccrjax.training.grid import GridTraining
     from ccrjax.training import TrainConfig
 
     assert jax.device_count() == 2, jax.devices()

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.learners.ddpg import DDPGConfig
+from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.training import TrainConfig, make_train
 
 SEEDS = (0, 1, 2)

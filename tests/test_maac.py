@@ -10,8 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.learners.base import Transition
-from ccrjax.learners.maac import (
+from ccrjax.agents.maac import (
     MAAC,
     NUM_ACTIONS,
     MAACConfig,
@@ -20,6 +19,7 @@ from ccrjax.learners.maac import (
     baseline,
     sample_actions,
 )
+from ccrjax.agents.types import Transition
 from ccrjax.training import TrainConfig, make_train
 
 N, F, B = 3, 6, 8
@@ -38,7 +38,7 @@ def leaky(x):
 
 
 def np_mlp(params, x) -> np.ndarray:
-    """A :class:`~ccrjax.learners.networks.MLP` with leaky ReLU, in numpy (one robot)."""
+    """A :class:`~ccrjax.agents.networks.MLP` with leaky ReLU, in numpy (one robot)."""
     layers = params["params"]
     x = np.asarray(x, np.float64)
     for n in range(len(layers)):

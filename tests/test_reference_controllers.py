@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.env import CCREnv
-from ccrjax.rollout import Episode, episode_metrics, run_episode
+from ccrjax.envs.env import CCREnv
+from ccrjax.training.acting import Episode, episode_metrics, run_episode
 from ccrjax.transforms import Plain
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"

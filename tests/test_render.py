@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ccrjax.env import CCREnv
-from ccrjax.render import (
+from ccrjax.envs.env import CCREnv
+from ccrjax.viz.render import (
     CCR_STATE_COLOURS,
     CCR_STATE_NAMES,
     FAILURE_COLOUR,

@@ -1,4 +1,4 @@
-"""The replay buffer (:mod:`ccrjax.learners.replay`): what goes in comes back aligned.
+"""The replay buffer (:mod:`ccrjax.agents.replay`): what goes in comes back aligned.
 
 Every stored number encodes where it came from, ``code = 100 * episode + step``: the
 observation at step ``t`` of an episode holds its code, the next observation the code of
@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.learners.base import Transition
-from ccrjax.learners.replay import add_episodes, init_replay, sample
+from ccrjax.agents.replay import add_episodes, init_replay, sample
+from ccrjax.agents.types import Transition
 
 T, E, N, F = 4, 2, 3, 2  # steps per episode, episodes per block, robots, features
 CAPACITY = 3 * E  # episodes: three blocks

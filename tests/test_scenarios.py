@@ -1,4 +1,4 @@
-"""Tests of the emergency scenarios (:mod:`ccrjax.scenarios`).
+"""Tests of the emergency scenarios (:mod:`ccrjax.envs.scenarios`).
 
 Hazards and robot positions are placed by hand (batch axis last: positions ``[N, 2, B]``,
 hazard arrays ``[2, B]``), so every expected value can be read off the test.
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ccrjax.scenarios import (
+from ccrjax.envs.scenarios import (
     SCENARIOS,
     Hazard,
     HiddenObstacle,
@@ -26,8 +26,8 @@ from ccrjax.scenarios import (
     Turbulence,
     make_scenario,
 )
-from ccrjax.scenarios.base import in_target_area
-from ccrjax.world import PhysicsParams, action_to_force, physics_step, rectangle_distance
+from ccrjax.envs.scenarios.base import in_target_area
+from ccrjax.envs.world import PhysicsParams, action_to_force, physics_step, rectangle_distance
 
 PHYSICS = PhysicsParams()
 NAMES = ["turbulence", "strong_wind", "hidden_obstacle", "nominal"]
@@ -215,7 +215,7 @@ def obstacle_rollout(position, velocity, action, hazard, steps, aim=None):
     """Robots driven against the hidden obstacle for ``steps`` steps.
 
     The action is ``action`` throughout, or, if ``aim`` (``[2, B]``) is given, full action
-    towards ``aim`` from wherever the robot is. One step as :meth:`ccrjax.env.CCREnv.advance`
+    towards ``aim`` from wherever the robot is. One step as :meth:`ccrjax.envs.env.CCREnv.advance`
     takes it: the action force (the obstacle exerts none), the MPE step with the robots'
     contacts, then the obstacle's constraint. Returns positions and velocities
     ``[T + 1, N, 2, B]`` (the start included) and every robot's distance to the obstacle

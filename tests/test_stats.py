@@ -1,5 +1,6 @@
-"""Statistics over seeds (:mod:`ccrjax.stats`) and the selection rule (:mod:`ccrjax.selection`)
-against hand computations: Student's t interval (clipped to a metric's range), the Welch
+"""Statistics over seeds (:mod:`ccrjax.run.stats`) and the selection rule
+(:mod:`ccrjax.run.selection`) against hand computations: Student's t interval (clipped to a
+metric's range), the Welch
 test, the headline's bootstrap interval, rliable's IQM and probability of improvement,
 the plateau check.
 
@@ -15,8 +16,8 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from ccrjax.selection import SelectionRule, select
-from ccrjax.stats import (
+from ccrjax.run.selection import SelectionRule, select
+from ccrjax.run.stats import (
     iqm,
     mean_ci,
     mean_ci_along,

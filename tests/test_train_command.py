@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from ccrjax import evaluate, train
-from ccrjax.checkpoint import Checkpoints
-from ccrjax.run_folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics
+from ccrjax.run.checkpoint import Checkpoints
+from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics
 from ccrjax.training import make_train
 
 TINY = [
@@ -347,3 +347,43 @@ def test_evaluate_reloads_the_run_and_redraws_its_pictures(finished_run, tmp_pat
     assert_usage_error(status, err, "holds no run")
     status, _, err = run_main(evaluate, [out, "--episodes", "0"], capsys)
     assert_usage_error(status, err, "--episodes")
+
+
+# ---------------------------------------------------------------------------- the policy
+def test_the_exported_policy_acts_as_the_trained_learner(finished_run, tmp_path):
+    """``ccrjax.load_policy`` needs only the run's policy export and config: its actions are
+    the trained learner's deterministic actions, for every seed."""
+    import ccrjax
+
+    copy = tmp_path / "policy-only"
+    copy.mkdir()
+    shutil.copytree(finished_run / "policy", copy / "policy")
+    shutil.copy(finished_run / "config.json", copy / "config.json")  # no checkpoints
+    restored = final_state(finished_run)
+    spec = train.RunSpec.from_dict(RunFolder(finished_run).read_config()["run"])
+    program = make_train(spec.train)
+    obs = jax.random.normal(jax.random.PRNGKey(7), (6, spec.train.num_robots, program.obs_size))
+    for index, seed in enumerate(spec.seed_list):
+        act = ccrjax.load_policy(copy, seed=seed)
+        learner = jax.tree_util.tree_map(lambda x, i=index: x[i], restored.state.learner)
+        expected = program.learner.act(learner, obs, jax.random.PRNGKey(0), False)
+        np.testing.assert_array_equal(np.asarray(act(obs)), np.asarray(expected))
+    size = sum(f.stat().st_size for f in (copy / "policy").rglob("*") if f.is_file())
+    assert size < 1_000_000  # small: networks only, no replay buffer
+    with pytest.raises(ValueError, match="seed must be one of"):
+        ccrjax.load_policy(copy, seed=99)
+    with pytest.raises(FileNotFoundError, match="no exported policy"):
+        ccrjax.load_policy(tmp_path)
+
+
+def test_every_option_says_what_it_is():
+    """Each option of the train command has a help text beyond its default; the nested
+    configurations' texts come from their fields' comments."""
+    parser = train.build_parser()
+    for action in parser._actions:
+        if not action.option_strings or action.help == "==SUPPRESS==":
+            continue
+        text = (action.help or "").split("(default")[0].strip()
+        assert len(text) > 5, f"{action.option_strings[0]} has no help text"
+    helps = {a.option_strings[0]: a.help for a in parser._actions if a.option_strings}
+    assert helps["--maac-reward-scale"].startswith("entropy temperature is 1 / reward_scale")

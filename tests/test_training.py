@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.env import CCREnv
-from ccrjax.learners.ddpg import DDPGConfig
-from ccrjax.rollout import episode_metrics, run_episode
+from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.envs.env import CCREnv
 from ccrjax.training import NonFiniteTraining, TrainConfig, make_train
+from ccrjax.training.acting import episode_metrics, run_episode
 from ccrjax.transforms import Pessimistic, Plain
 
 TINY = TrainConfig(
@@ -221,3 +221,19 @@ def test_a_budget_that_ends_before_learning_starts_is_refused():
     assert TINY.min_total_env_steps <= TINY.total_env_steps
     with pytest.raises(ValueError, match="--steps"):
         make_train(dataclasses.replace(TINY, learning_starts=10 * TINY.total_env_steps))
+
+
+def test_rounded_budgets_are_reported_not_hidden():
+    """A budget or evaluation interval that is not a whole number of iterations runs rounded,
+    and the schedule says what was asked, what runs, and why."""
+    config = TrainConfig(algo="maddpg", total_env_steps=30_000, eval_every=4_900)
+    schedule = config.schedule()
+    assert schedule["requested"] == {"total_env_steps": 30_000, "eval_every": 4_900}
+    # 8 envs x 25 steps = 200 per iteration: 4,900 -> 24 iterations = 4,800; 30,000 ->
+    # 150 iterations -> 7 intervals of 24 = 168 iterations = 33,600.
+    assert schedule["ran"] == {"total_env_steps": 33_600, "eval_every": 4_800}
+    assert len(schedule["notes"]) == 2
+    assert "--eval-every 4,900 runs as 4,800" in schedule["notes"][0]
+    assert "--steps 30,000 runs as 33,600" in schedule["notes"][1]
+    exact = TrainConfig(algo="maddpg", total_env_steps=40_000, eval_every=20_000).schedule()
+    assert exact["notes"] == [] and exact["ran"] == exact["requested"]

@@ -1,4 +1,4 @@
-"""Tests of :mod:`ccrjax.world`: hand-computed steps, agreement with the maintained MPE
+"""Tests of :mod:`ccrjax.envs.world`: hand-computed steps, agreement with the maintained MPE
 (``mpe2``), properties (no NaN/inf) of the contact laws, and the solid rectangle
 (:func:`rectangle_distance`, :func:`rectangle_stop`).
 
@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ccrjax.world import (
+from ccrjax.envs.world import (
     DISCRETE_ACTION_DIRECTIONS,
     PhysicsParams,
     action_to_force,

@@ -24,9 +24,9 @@ import numpy as np
 try:  # the layout before and after the restructuring
     from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 except ImportError:  # pragma: no cover
-    from ccrjax.training.program import ALGOS, VARIANTS, TrainConfig, make_train
-from ccrjax.learners.ddpg import DDPGConfig
-from ccrjax.learners.maac import MAACConfig
+    from ccrjax.training.program.program import ALGOS, VARIANTS, TrainConfig, make_train
+from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.agents.maac import MAACConfig
 
 
 def digest(tree) -> str:

@@ -1,0 +1,56 @@
+"""Searches of a run parameter (CCR's lambda, the pessimistic penalty): the grid of values
+x seeds that one program trains, and the per-value summary of its results.
+
+Used by ``python -m ccrjax.sweep`` (one scenario and learner) and
+``experiments/search.py`` (all of them, with the selection rule of
+:mod:`ccrjax.run.selection`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ccrjax.run.folder import METRIC_RANGES, POINT_METRICS
+from ccrjax.run.stats import mean_ci
+from ccrjax.training import TrainConfig
+from ccrjax.training.grid import GridRuns
+
+# The run parameter each searchable variant takes, and the values searched by default
+# (the protocol's, docs/protocol.md).
+SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty"}
+DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
+                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)}
+
+
+def summarise(values: np.ndarray, metric: str) -> dict[str, Any]:
+    """Per-seed values of ``metric`` with their mean and 95% interval (within its range)."""
+    return {"per_seed": [float(v) for v in values],
+            **mean_ci(values, bounds=METRIC_RANGES[metric])}
+
+
+def search_grid(config: TrainConfig, values: Sequence[float], seeds: Sequence[int]
+                ) -> tuple[str, list[int], list[float]]:
+    """The grid of a search of ``config.variant``'s run parameter (CCR's ``lam``, the
+    pessimistic ``penalty``): every value with every seed, values outer."""
+    name = SEARCHED_PARAMETER.get(config.variant)
+    if name is None:
+        raise ValueError(f"variant must be one of {sorted(SEARCHED_PARAMETER)} to search, "
+                         f"got {config.variant!r}")
+    grid_seeds = [int(s) for _ in values for s in seeds]
+    grid_values = [float(v) for v in values for _ in seeds]
+    return name, grid_seeds, grid_values
+
+
+def search_rows(runs: GridRuns, values: Sequence[float], grid_values: Sequence[float],
+                seeds: Sequence[int]) -> list[dict[str, Any]]:
+    """One row per value: the per-seed final metrics with their means and intervals."""
+    final = runs.final
+    rows = []
+    for value in values:
+        mask = np.asarray(grid_values) == float(value)
+        rows.append({"value": float(value), "seeds": list(seeds),
+                     **{m: summarise(final[m][mask], m) for m in POINT_METRICS}})
+    return rows

@@ -1,0 +1,290 @@
+"""A grid of independent runs (seeds x lambda values x configurations) spread over devices.
+
+The experiments train many runs of one program at once: ``jax.vmap`` over a
+leading *grid* axis (one entry per seed, lambda value, penalty ...). This module
+shards that axis over every device JAX sees, so the same command uses one CPU,
+all GPUs of a machine, or the devices of several machines:
+
+* the grid is padded to a multiple of the device count (the padding repeats the
+  last entry and is dropped from the results);
+* inputs are placed with ``NamedSharding(mesh, P("grid"))`` on a one-axis mesh of
+  all devices, and the vmapped program is jitted with the same sharding for its
+  outputs; the runs are independent, so XLA partitions the program along the
+  grid with no communication between devices;
+* results come back to every host whole (``process_allgather`` when several
+  processes take part).
+
+Several machines: start the same command on each host after
+``jax.distributed.initialize()`` (``ccrjax.training.grid.initialize_distributed`` reads the
+usual ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES``, ``JAX_PROCESS_ID`` variables, or
+the cluster's own, e.g. SLURM's); every process builds the same grid inputs
+(they are deterministic functions of the command line), feeds its own devices'
+slices, and receives every result.
+
+On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` makes two devices of
+one machine's cores; ``tests/test_grid.py`` checks that sharded results equal
+single-device results.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+from ccrjax.training.acting import run_episode
+from ccrjax.training.config import TrainConfig, make_env
+from ccrjax.training.program import NonFiniteTraining, make_train
+
+GRID_AXIS = "grid"
+
+
+def initialize_distributed() -> bool:
+    """``jax.distributed.initialize()`` when the environment describes several processes.
+
+    Returns whether it was called. Reads ``JAX_COORDINATOR_ADDRESS`` (and lets JAX find the
+    process count and index, from ``JAX_NUM_PROCESSES``/``JAX_PROCESS_ID`` or a cluster
+    manager such as SLURM). Call it before anything else touches JAX's devices.
+    """
+    if not os.environ.get("JAX_COORDINATOR_ADDRESS") and not os.environ.get("SLURM_JOB_ID"):
+        return False
+    jax.distributed.initialize()
+    return True
+
+
+def grid_mesh(devices: list | None = None) -> Mesh:
+    """A one-axis mesh (``"grid"``) over ``devices`` (default: every device JAX sees)."""
+    devices = jax.devices() if devices is None else devices
+    return Mesh(np.asarray(devices), (GRID_AXIS,))
+
+
+def padded_size(size: int, num_devices: int) -> int:
+    return num_devices * math.ceil(size / num_devices)
+
+
+def _pad(tree: Any, size: int, target: int) -> Any:
+    if target == size:
+        return tree
+    return jax.tree_util.tree_map(
+        lambda x: np.concatenate([x, np.repeat(x[-1:], target - size, axis=0)]), tree
+    )
+
+
+def _global(tree: Any, sharding: NamedSharding) -> Any:
+    """Host arrays (the same on every process) as global arrays with ``sharding``."""
+
+    def place(x: np.ndarray) -> jax.Array:
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree_util.tree_map(place, tree)
+
+
+def _to_host(tree: Any) -> Any:
+    if jax.process_count() == 1:
+        return jax.device_get(tree)
+
+    return multihost_utils.process_allgather(tree, tiled=True)
+
+
+class GridProgram:
+    """``function`` (one run) vmapped over a grid axis and sharded over ``mesh``'s devices.
+
+    ``GridProgram(f)(grid_inputs)`` returns ``vmap(f)(grid_inputs)`` as host (numpy)
+    arrays. ``grid_inputs`` is a pytree whose leaves share the leading grid axis.
+    Compile ahead of time with :meth:`compile` to time the compilation on its own.
+    """
+
+    def __init__(self, function: Callable[[Any], Any], mesh: Mesh | None = None) -> None:
+        self.mesh = grid_mesh() if mesh is None else mesh
+        self.sharding = NamedSharding(self.mesh, P(GRID_AXIS))
+        self.function = function
+        self._jitted = jax.jit(jax.vmap(function), in_shardings=self.sharding,
+                               out_shardings=self.sharding)
+        self._compiled: dict[Any, Any] = {}
+
+    @property
+    def num_devices(self) -> int:
+        return self.mesh.devices.size
+
+    def _prepare(self, inputs: Any) -> tuple[Any, int]:
+        leaves = jax.tree_util.tree_leaves(inputs)
+        size = int(np.shape(leaves[0])[0])
+        host = jax.tree_util.tree_map(np.asarray, inputs)
+        padded = _pad(host, size, padded_size(size, self.num_devices))
+        return _global(padded, self.sharding), size
+
+    @staticmethod
+    def _signature(placed: Any) -> Any:
+        return jax.tree_util.tree_structure(placed), tuple(
+            (x.shape, x.dtype) for x in jax.tree_util.tree_leaves(placed))
+
+    def compile(self, inputs: Any, optimize: bool = True) -> None:
+        """Compiles for inputs like ``inputs`` ahead of the call. ``optimize=False`` compiles
+        at XLA's lowest backend optimisation level: about half the compile time on CPU and a
+        slower program, for smoke tests whose programs run for moments."""
+        placed, _ = self._prepare(inputs)
+        key = self._signature(placed)
+        if key not in self._compiled:
+            lowered = self._jitted.lower(placed)
+            options = None if optimize else {"xla_backend_optimization_level": 0}
+            self._compiled[key] = lowered.compile(compiler_options=options)
+
+    def __call__(self, inputs: Any) -> Any:
+        placed, size = self._prepare(inputs)
+        run = self._compiled.get(self._signature(placed), self._jitted)
+        out = _to_host(run(placed))
+        return jax.tree_util.tree_map(lambda x: np.asarray(x)[:size], out)
+
+
+def stack_keys(seeds: list[int]) -> jax.Array:
+    """One ``PRNGKey(seed)`` per seed, stacked: ``uint32[len(seeds), 2]``."""
+    return jnp.stack([jax.random.PRNGKey(seed) for seed in seeds])
+
+
+@dataclasses.dataclass
+class GridRuns:
+    """The results of :func:`train_grid`: entry ``g`` is ``seeds[g]`` with ``params[...][g]``."""
+
+    config: TrainConfig
+    seeds: list[int]
+    params: dict[str, np.ndarray]  # [G] per transform parameter
+    history: dict[str, np.ndarray]  # [G, evaluations + 1] per metric (and env_steps)
+    policy: Any  # (learner state, transform state), leaves [G, ...]
+    episodes: dict[str, np.ndarray] | None  # recorded evaluation episodes, leaves [G, ...]
+    compile_s: float
+    run_s: float
+
+    @property
+    def final(self) -> dict[str, np.ndarray]:
+        """The last evaluation of every run, ``[G]`` per metric."""
+        return {name: values[:, -1] for name, values in self.history.items()}
+
+    def select(self, mask: np.ndarray) -> GridRuns:
+        """The runs where ``mask`` ``[G]`` holds."""
+        index = np.flatnonzero(mask)
+        return dataclasses.replace(
+            self,
+            seeds=[self.seeds[i] for i in index],
+            params={k: v[index] for k, v in self.params.items()},
+            history={k: v[index] for k, v in self.history.items()},
+            policy=jax.tree_util.tree_map(lambda x: x[index], self.policy),
+            episodes=None if self.episodes is None
+            else {k: v[index] for k, v in self.episodes.items()},
+        )
+
+
+class GridTraining:
+    """A grid of runs of one configuration, compiled and run as one sharded program.
+
+    Entry ``g`` trains with seed ``seeds[g]`` and the transform numbers ``params[name][g]``
+    (e.g. ``{"lam": [...]}``, ``{"penalty": [...]}``); the others take the configuration's
+    values. With ``record_episodes > 0`` the same program then runs that many fresh
+    evaluation episodes of every trained team (deterministic policies; the same starts
+    and hazards for every entry, drawn from ``record_key``) and returns what happened in
+    them (:attr:`GridRuns.episodes`). :meth:`compile` and :meth:`run` are separate so
+    that a caller can compile the next grid while this one trains.
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        seeds: Sequence[int],
+        params: dict[str, Sequence[float]] | None = None,
+        *,
+        record_episodes: int = 0,
+        record_key: jax.Array | None = None,
+    ) -> None:
+        self.config = config
+        self.seeds = [int(s) for s in seeds]
+        program = make_train(config)
+        defaults = program.default_transform_params()
+        given = {k: np.asarray(v, np.float32) for k, v in (params or {}).items()}
+        for name, values in given.items():
+            if name not in defaults:
+                raise ValueError(f"variant {config.variant!r} takes the run parameters "
+                                 f"{sorted(defaults)}, not {name!r}")
+            if values.shape != (len(self.seeds),):
+                raise ValueError(f"params[{name!r}] must hold one value per seed "
+                                 f"({len(self.seeds)})")
+        self.params = {name: given.get(name, np.full(len(self.seeds), value, np.float32))
+                       for name, value in defaults.items()}
+        self.inputs = {"key": np.asarray(stack_keys(self.seeds)), "params": self.params}
+        record_env = make_env(config, record_episodes) if record_episodes else None
+        record_key = jax.random.PRNGKey(0) if record_key is None else record_key
+
+        def one_run(entry: dict[str, Any]):
+            state, history = program.train(entry["key"], entry["params"])
+            out = {"policy": (state.learner, state.transform), "history": history,
+                   "nonfinite": state.nonfinite_iteration}
+            if record_env is not None:
+                def greedy(obs, step_key):
+                    return program.learner.act(state.learner, obs, step_key, False)
+
+                _, episode = run_episode(record_env, program.transform, state.transform,
+                                         greedy, program.learner.discrete, record_key)
+                out["episodes"] = {
+                    "position": episode.position,
+                    "danger": episode.danger,
+                    "success": episode.success[-1],  # [N, E]: in the target area at the end
+                    "hazard_centre": episode.hazard.centre,
+                    "hazard_half_extent": episode.hazard.half_extent,
+                    **episode.info,
+                }
+            return out
+
+        self.grid = GridProgram(one_run)
+        self.compile_s = 0.0
+
+    def compile(self, optimize: bool = True) -> float:
+        """Compiles the program (thread-safe to call from a worker); returns the seconds.
+        ``optimize=False``: see :meth:`ccrjax.training.grid.GridProgram.compile`."""
+        start = time.perf_counter()
+        self.grid.compile(self.inputs, optimize)
+        self.compile_s = time.perf_counter() - start
+        return self.compile_s
+
+    def run(self) -> GridRuns:
+        """Trains every entry; raises :class:`ccrjax.training.program.NonFiniteTraining` if one went
+        non-finite."""
+        start = time.perf_counter()
+        out = self.grid(self.inputs)
+        run_s = time.perf_counter() - start
+        nonfinite = out["nonfinite"]
+        if np.any(nonfinite >= 0):
+            bad = int(np.flatnonzero(nonfinite >= 0)[0])
+            raise NonFiniteTraining(f"run {bad} (seed {self.seeds[bad]}) became non-finite at "
+                                    f"iteration {int(nonfinite[bad])}")
+        return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
+                        history={k: np.asarray(v) for k, v in out["history"].items()},
+                        policy=out["policy"], episodes=out.get("episodes"),
+                        compile_s=self.compile_s, run_s=run_s)
+
+
+def train_grid(
+    config: TrainConfig,
+    seeds: Sequence[int],
+    params: dict[str, Sequence[float]] | None = None,
+    *,
+    record_episodes: int = 0,
+    record_key: jax.Array | None = None,
+    log=None,
+) -> GridRuns:
+    """Compiles and runs a :class:`GridTraining` (see there)."""
+    training = GridTraining(config, seeds, params, record_episodes=record_episodes,
+                            record_key=record_key)
+    compile_s = training.compile()
+    if log:
+        log(f"  compiled in {compile_s:.1f} s ({training.grid.num_devices} device(s)); "
+            f"training {len(training.seeds)} run(s) ...")
+    return training.run()

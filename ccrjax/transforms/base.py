@@ -1,0 +1,125 @@
+"""Transforms of what learners see: observations and rewards, between env and replay.
+
+A transform sits between the environment and a learner. It may widen each
+robot's observation and reshape its reward before the transition is stored;
+the learner only sees the result. ``plain`` changes nothing; ``pessimistic``
+(the paper's baseline) lowers the reward on dangerous steps; CCR
+(:mod:`ccrjax.transforms.ccr`) is a third transform of the same kind.
+
+All arrays are in the environment's layout (batch axis last): observations
+``[N, F, E]``, rewards ``[N, E]``.
+
+Interface (pure functions; ``state`` is the transform's own pytree)::
+
+    extra_obs_size(env) -> int
+    default_params() -> dict[str, float]               # per-run numbers, may be traced
+    init(env, params) -> state                         # once per training run
+    start_episode(state, env_state) -> (state, obs)    # after env.reset
+    step(state, env_state, action, next_env_state) -> (state, obs, reward, info)
+    end_episode(state) -> state                        # after the episode's last step
+
+``params`` holds the transform's numeric hyperparameters (the pessimistic
+penalty, CCR's lambda) as arrays inside the state, so that one compiled program
+can run several values side by side under ``jax.vmap``. ``info`` is a dict of
+per-robot diagnostics ``[N, E]`` of the step (empty for plain and pessimistic;
+CCR reports its emergency scores, intrinsic rewards and robot states). A
+transform's state must not depend on the number of environments ``E``, so that
+training and evaluation (which run different batches) share it: per-episode
+arrays are created by ``start_episode`` and dropped by ``end_episode``, so that
+the state a training iteration carries has the same shapes before and after an
+episode (``lax.scan`` needs that).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+
+from ccrjax.checks import check_number
+from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import State as EnvState
+
+
+class Transform(Protocol):
+    name: str
+
+    def extra_obs_size(self, env: CCREnv) -> int: ...
+
+    def default_params(self) -> dict[str, float]: ...
+
+    def init(self, env: CCREnv, params: dict[str, Any]) -> Any: ...
+
+    def start_episode(self, state: Any, env_state: EnvState) -> tuple[Any, jax.Array]: ...
+
+    def step(
+        self, state: Any, env_state: EnvState, action: jax.Array, next_env_state: EnvState
+    ) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]: ...
+
+    def end_episode(self, state: Any) -> Any: ...
+
+
+def as_params(defaults: dict[str, float], params: dict[str, Any] | None) -> dict[str, jax.Array]:
+    """``params`` completed from ``defaults`` as float32 arrays; unknown names are refused."""
+    params = dict(params or {})
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ValueError(
+            f"unknown transform parameter(s) {unknown}; this transform takes {sorted(defaults)}"
+        )
+    return {name: jnp.asarray(params.get(name, value), jnp.float32)
+            for name, value in defaults.items()}
+
+
+@dataclasses.dataclass(frozen=True)
+class Plain:
+    """The environment's observations and rewards, unchanged."""
+
+    name = "plain"
+
+    def extra_obs_size(self, env: CCREnv) -> int:
+        return 0
+
+    def default_params(self) -> dict[str, float]:
+        return {}
+
+    def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> dict[str, jax.Array]:
+        return as_params(self.default_params(), params)
+
+    def start_episode(self, state, env_state):
+        return state, env_state.obs
+
+    def step(self, state, env_state, action, next_env_state):
+        return state, next_env_state.obs, next_env_state.reward, {}
+
+    def end_episode(self, state):
+        return state
+
+
+@dataclasses.dataclass(frozen=True)
+class Pessimistic(Plain):
+    """The paper's pessimistic baseline: ``r_i - penalty`` on every step robot ``i`` is in danger.
+
+    Danger is the environment's own predicate (inside the turbulence or wind
+    area, touching the obstacle) at the state the step led to. The paper does not
+    give the penalty; the default 1.0 is one unit of distance-to-destination, the
+    size of the environment reward itself. Observations are the plain ones.
+    ``penalty`` is the default of the run parameter of the same name, which
+    :meth:`init` may override with a (possibly traced) value; penalty 0 is
+    exactly the plain learner.
+    """
+
+    penalty: float = 1.0
+    name = "pessimistic"
+
+    def __post_init__(self) -> None:
+        check_number("", "penalty", self.penalty, positive=False)
+
+    def default_params(self) -> dict[str, float]:
+        return {"penalty": float(self.penalty)}
+
+    def step(self, state, env_state, action, next_env_state):
+        reward = next_env_state.reward - state["penalty"] * next_env_state.metrics["danger"]
+        return state, next_env_state.obs, reward, {}

@@ -1,0 +1,266 @@
+"""CCR as a transform (:mod:`ccrjax.transforms.base`): scores in the observation, intrinsic reward.
+
+Per transition ``t -> t+1`` of a batch of environments (paper, Fig. 2):
+
+1. the physical model (:mod:`ccrjax.transforms.ccr.dynamics`) predicts each robot's own
+   state ``s_hat_{t+1}`` from what the robot observed at ``t`` (velocity,
+   observation features ``2:4``) and its command; the raw emergency score is
+   ``|s_hat_{t+1} - s_{t+1}|^2`` against what it observes at ``t+1`` (position and
+   velocity, features ``0:4``);
+2. the transition is kept for the model's robust statistics, which take in the
+   whole episode at its end (:meth:`CCR.end_episode`); the model is refitted at
+   every episode start;
+3. the rolling mean over ``m + 1`` steps gives the smoothed score ``E_{t+1}``;
+4. the intrinsic reward uses the smoothed scores ``E_t`` (those robot ``i`` saw
+   when it acted) and the positions at ``t`` and ``t+1``
+   (:mod:`ccrjax.transforms.ccr.intrinsic`); it is added to the environment reward;
+5. the next observation is the environment's, followed by the ``N - 1`` other
+   robots' ``E_{t+1}`` (zero out of communication range; :mod:`ccrjax.transforms.ccr.scores`).
+
+The pairs of robots are read from what the robots observe: the distances and
+directions to the other robots are observation features already
+(:func:`ccrjax.envs.env.other_robot_features`), so a step computes no pairwise
+geometry of its own; ``intrinsic_reward`` and ``shared_scores`` (from positions)
+are the reference definitions the tests compare with.
+
+``info`` reports, per robot ``[N, E]``: ``emergency_score`` (``E_{t+1}``),
+``intrinsic_reward`` and ``ccr_state``, the paper's trajectory colour (index into
+``ccrjax.viz.render.CCR_STATE_NAMES``): 1 "sensing danger" if the own smoothed score
+exceeds ``sensing_threshold``, else 2 "activated" if ``|R_in|`` exceeds
+``activation_threshold``, else 0 "standby".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import chex
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import ccrjax.transforms.ccr.dynamics as dynamics
+from ccrjax.checks import check_int, check_number
+from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import State as EnvState
+from ccrjax.transforms.base import as_params
+from ccrjax.transforms.ccr.intrinsic import intrinsic_reward_from_observation
+from ccrjax.transforms.ccr.scores import (
+    ScoreWindow,
+    emergency_score,
+    init_window,
+    push_score,
+    shared_scores_from_observation,
+    smoothed_score,
+)
+
+STANDBY, SENSING_DANGER, ACTIVATED = 0, 1, 2  # ccrjax.viz.render.CCR_STATE_NAMES order
+
+
+@dataclasses.dataclass(frozen=True)
+class CCRConfig:
+    """CCR's hyperparameters. The paper gives only ``lam``; the rest are ours.
+
+    * ``lam = 30``: the paper's choice after its parameter search (a run
+      parameter: ``CCR.init`` may override it with a traced value);
+    * ``window = 4``: ``m``, the rolling mean runs over ``m + 1 = 5`` steps (0.5 s);
+      a turbulence or wind push is then still felt a few steps after it happened;
+    * ``comm_range = 1.0``: the team starts in a 0.5 x 1.0 box about one unit
+      before the hazard, so at the start nearly every pair can talk, and a robot
+      entering the hazard reaches the robots close behind it;
+    * ``degree = 2``: the nominal dynamics are linear in ``(v, u)``, so degree 2
+      already has headroom; ``ridge = 1e-4``, relative to each feature's moment;
+    * ``tolerance = 1e-3``: squared prediction error (units^2, per 0.1 s step)
+      below which a transition counts fully in the fit;
+    * ``sensing_threshold = 1e-2``, ``activation_threshold = 2e-2``: the colours'
+      thresholds, calibrated on measured scores (see the comments on the fields).
+      The activation threshold compares ``|R_in|`` with ``lam`` included, so it is
+      calibrated for ``lam = 30``; with ``lam = 0`` no robot is ever "activated".
+    """
+
+    lam: float = 30.0  # weight lambda of the intrinsic reward
+    window: int = 4  # m: scores averaged over the last m + 1 steps
+    comm_range: float = 1.0  # robots share scores within this distance
+    degree: int = 2  # degree of the polynomial dynamics model
+    ridge: float = 1e-4  # ridge term of the model's least-squares fit
+    # [-1, 1]^2 with +0.6 added to u_x so that robots reach the hazard, clipped; the model
+    # fitted on 6 episodes of the scenario's own transitions, measured on a seventh).
+    # Raw score per robot-step, safe steps (all four scenarios): median 2e-7, q90 2e-6,
+    # q99 0.2-1.6 (robot-robot contacts, ~1-2% of steps); danger steps: turbulence
+    # median 0.17 (mean 0.29), strong wind 0.16 (= (4 * 0.1)^2, mean 0.14), obstacle
+    # contact 0.6 (mean 1.9); their q10 is ~2e-7 (the step a robot enters, before the
+    # hazard has acted). Tolerance 1e-5 or 1e-2 instead of 1e-3 gave 2-30x larger
+    # nominal errors (too few full-weight transitions early; wind bending the model).
+    tolerance: float = 1e-3  # squared error of full weight in the robust fit
+    # robots in danger: median 0.1-0.17, q25 0.03-0.04 (turbulence, wind); of safe robots
+    # median 2e-7 (q90 0.005-0.05 from recent contacts). 1e-2 lies below a single wind
+    # push averaged over the window (0.16 / 5) and ~5 orders above quiet nominal motion;
+    # 80-86% of hazard robot-steps in turbulence and wind are then "sensing".
+    sensing_threshold: float = 1e-2  # own smoothed score of 'sensing danger'
+    # with no in-range neighbour above the sensing threshold: median 2e-7, q99 0.015-0.019;
+    # robots with such a neighbour: q10 0.01-0.03, median 0.09-0.44.
+    activation_threshold: float = 2e-2  # |R_in| of 'activated' (pictures)
+
+    def __post_init__(self) -> None:
+        check_number("CCRConfig", "lam", self.lam, positive=False)
+        check_int("CCRConfig", "window", self.window, 0)
+        check_number("CCRConfig", "comm_range", self.comm_range, positive=False)
+        check_int("CCRConfig", "degree", self.degree, dynamics.MIN_DEGREE, dynamics.MAX_DEGREE)
+        for name in ("ridge", "tolerance", "sensing_threshold", "activation_threshold"):
+            check_number("CCRConfig", name, getattr(self, name), positive=True)
+
+
+@struct.dataclass
+class EpisodeArrays:
+    """What CCR carries within one episode (shapes depend on the batch ``E``)."""
+
+    window: ScoreWindow  # raw scores of the last m + 1 transitions
+    score: jax.Array  # float32[N, E]: smoothed E_t of the current observation
+    # The episode's transitions for the model, one row per step: phi(x) [P], the targets
+    # y [4] and the squared error e [1] under this episode's coefficients, [T, N, P + 5, E];
+    # they enter the statistics once, at the episode's end (one large product instead of
+    # T small ones: the same weighted means, fewer operations per step).
+    transitions: jax.Array
+
+
+@struct.dataclass
+class CCRState:
+    """CCR's state. Outside an episode (``episode is None``) nothing depends on ``E``."""
+
+    params: dict[str, jax.Array]  # {"lam": float32[]}
+    statistics: dynamics.DynamicsStatistics
+    coefficients: jax.Array  # float32[P, 4], fitted at the last episode start
+    episode: EpisodeArrays | None = None
+    discrete_actions: bool = struct.field(pytree_node=False, default=False)
+    episode_length: int = struct.field(pytree_node=False, default=0)  # T: rows of transitions
+
+
+@dataclasses.dataclass(frozen=True)
+class CCR:
+    """Collective Conditioned Reflex (see the module docstring)."""
+
+    config: CCRConfig = CCRConfig()
+    name = "ccr"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.config, CCRConfig):
+            raise ValueError(f"CCR.config must be a CCRConfig, got {self.config!r}")
+
+    def extra_obs_size(self, env: CCREnv) -> int:
+        """The other robots' shared scores: ``N - 1``."""
+        return env.num_robots - 1
+
+    def default_params(self) -> dict[str, float]:
+        return {"lam": float(self.config.lam)}
+
+    def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> CCRState:
+        """An untrained model (zero statistics and coefficients) and the run's ``lam``."""
+        return CCRState(
+            params=as_params(self.default_params(), params),
+            statistics=dynamics.init_statistics(self.config.degree),
+            coefficients=dynamics.init_coefficients(self.config.degree),
+            discrete_actions=env.discrete_actions,
+            episode_length=env.episode_length,
+        )
+
+    def start_episode(self, state: CCRState, env_state: EnvState) -> tuple[CCRState, jax.Array]:
+        """Refits the model, empties the window; the observation gets zero scores."""
+        obs = env_state.obs
+        chex.assert_rank(obs, 3)
+        num_robots, _, num_envs = obs.shape
+        score = jnp.zeros((num_robots, num_envs), jnp.float32)
+        rows = dynamics.num_features(self.config.degree) + dynamics.NUM_OUTPUTS + 1
+        state = state.replace(
+            coefficients=dynamics.fit(state.statistics, self.config.ridge),
+            episode=EpisodeArrays(
+                window=init_window(self.config.window, num_robots, num_envs), score=score,
+                transitions=jnp.zeros((state.episode_length, num_robots, rows, num_envs)),
+            ),
+        )
+        shared = jnp.zeros((num_robots, num_robots - 1, num_envs), obs.dtype)
+        return state, jnp.concatenate([obs, shared], axis=1)
+
+    def step(
+        self, state: CCRState, env_state: EnvState, action: jax.Array, next_env_state: EnvState
+    ) -> tuple[CCRState, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """One transition: score, model statistics, intrinsic reward, next observation."""
+        if state.episode is None:
+            raise ValueError("CCR.step needs an episode: call start_episode first")
+        config = self.config
+        obs, next_obs = env_state.obs, next_env_state.obs
+        chex.assert_rank(obs, 3)
+        chex.assert_equal_shape([obs, next_obs])
+        num_robots, _, num_envs = obs.shape
+        if state.discrete_actions:
+            chex.assert_shape(action, (num_robots, num_envs))
+        else:
+            chex.assert_shape(action, (num_robots, 2, num_envs))
+        chex.assert_shape(next_env_state.reward, (num_robots, num_envs))
+
+        own_state, next_own_state = obs[:, 0:4], next_obs[:, 0:4]  # (p, v) as observed
+        command = dynamics.command_vector(action, state.discrete_actions)
+        # phi(x) once, for the prediction and for the model's statistics.
+        features = dynamics.polynomial_features(
+            dynamics.model_inputs(own_state, command), config.degree
+        )
+        predicted = jnp.einsum("npe,pk->nke", features, state.coefficients)  # y_hat
+        targets = dynamics.model_targets(own_state, next_own_state)  # y = (dp, v_{t+1})
+        # s_hat - s = (p_t + dp_hat - p_{t+1}, v_hat - v_{t+1}) = y_hat - y, so the score
+        # |s_hat - s|^2 is computed on the model's targets.
+        raw_score = emergency_score(predicted, targets)
+        episode = state.episode
+        transitions = jax.lax.dynamic_update_index_in_dim(
+            episode.transitions,
+            jnp.concatenate([features, targets, raw_score[:, None]], axis=1),
+            jnp.minimum(episode.window.count, state.episode_length - 1),
+            axis=0,
+        )
+        window = push_score(episode.window, raw_score)
+        next_score = smoothed_score(window)
+        # What the robots observe of each other (distances, directions) gives the pairs.
+        displacement = next_own_state[:, 0:2] - own_state[:, 0:2]
+        reward_in = intrinsic_reward_from_observation(
+            episode.score, obs, displacement, config.comm_range, state.params["lam"]
+        )
+        shared = shared_scores_from_observation(next_score, next_obs, config.comm_range)
+        ccr_state = jnp.where(
+            next_score > config.sensing_threshold,
+            SENSING_DANGER,
+            jnp.where(jnp.abs(reward_in) > config.activation_threshold, ACTIVATED, STANDBY),
+        ).astype(jnp.int32)
+        state = state.replace(
+            episode=EpisodeArrays(window=window, score=next_score, transitions=transitions)
+        )
+        info = {
+            "emergency_score": next_score,
+            "intrinsic_reward": reward_in,
+            "ccr_state": ccr_state,
+        }
+        return (
+            state,
+            jnp.concatenate([next_obs, shared.astype(next_obs.dtype)], axis=1),
+            next_env_state.reward + reward_in,
+            info,
+        )
+
+    def end_episode(self, state: CCRState) -> CCRState:
+        """Adds the episode's transitions to the model's statistics (robust weights under the
+        episode's coefficients) and drops the per-episode arrays: what remains (model,
+        params) is independent of ``E``."""
+        episode = state.episode
+        if episode is None:
+            return state
+        transitions = episode.transitions  # [T, N, P + 5, E]
+        steps, num_robots, rows, num_envs = transitions.shape
+        p = rows - dynamics.NUM_OUTPUTS - 1
+        taken = (jnp.arange(steps) < episode.window.count)[:, None, None]  # [T, 1, 1]
+        # One batch of T x E samples per robot: [N, rows, T E].
+        samples = jnp.moveaxis(transitions, 0, 2).reshape(num_robots, rows, steps * num_envs)
+        error = jnp.where(taken, transitions[:, :, -1], jnp.inf)  # slots not taken: weight 0
+        error = jnp.moveaxis(error, 0, 1).reshape(num_robots, steps * num_envs)
+        statistics = dynamics.accumulate_features(
+            state.statistics, samples[:, :p], samples[:, p:p + dynamics.NUM_OUTPUTS], error,
+            self.config.tolerance,
+        )
+        return state.replace(statistics=statistics, episode=None)

@@ -1,0 +1,86 @@
+"""Pictures of a trained team: one evaluation episode, drawn and animated.
+
+The episode runs exactly as evaluation does (deterministic policy, the run's own
+transform, so a CCR policy sees the shared emergency scores it was trained
+with), in one fresh environment. Under CCR every robot-step is coloured by its
+CCR state (standby, sensing danger, activated: the paper's blue, yellow and
+pink); otherwise all robots are drawn in one colour.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from ccrjax.run.folder import replacing
+from ccrjax.training import TrainProgram, TrainState, make_env
+from ccrjax.training.acting import run_episode
+from ccrjax.viz.render import (
+    CCR_STATE_COLOURS,
+    CCR_STATE_NAMES,
+    DEFAULT_STATE_COLOURS,
+    DEFAULT_STATE_NAMES,
+    EpisodeRecord,
+    animate_episode,
+    compile_for,
+    draw_episode,
+)
+
+# Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
+PICTURE_KEY = 0x9E3779B1
+
+def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Array
+                           ) -> EpisodeRecord:
+    """One evaluation episode of ``state`` (one seed, no seed axis) in a fresh environment."""
+    env = make_env(program.config, 1)
+
+    def rollout(state: TrainState, key: jax.Array):
+        def greedy(obs, key):
+            return program.learner.act(state.learner, obs, key, False)
+
+        _, episode = run_episode(
+            env, program.transform, state.transform, greedy, program.learner.discrete, key
+        )
+        return episode.position, episode.hazard, episode.info.get("ccr_state")
+
+    position, hazard, ccr_state = compile_for(rollout, (state, key))(state, key)
+    positions = np.asarray(position)[..., 0]  # [T + 1, N, 2]
+    if ccr_state is None:
+        states = np.zeros(positions.shape[:2], np.int32)
+        names, colours = DEFAULT_STATE_NAMES, DEFAULT_STATE_COLOURS
+    else:
+        # The reset's positions come before any transition: standby.
+        steps = np.asarray(ccr_state)[..., 0].astype(np.int32)  # [T, N]
+        states = np.concatenate([np.zeros_like(steps[:1]), steps])
+        names, colours = CCR_STATE_NAMES, CCR_STATE_COLOURS
+    return EpisodeRecord(
+        scenario=env.scenario.name,
+        positions=positions,
+        robot_radius=env.robot_radius,
+        goal=tuple(float(v) for v in env.layout.goal),
+        goal_radius=env.layout.goal_radius,
+        hazard_centre=np.asarray(hazard.centre)[:, 0],
+        hazard_half_extent=np.asarray(hazard.half_extent)[:, 0],
+        hazard_direction=np.asarray(hazard.direction)[:, 0],
+        states=states,
+        state_names=names,
+        state_colours=colours,
+    )
+
+
+def write_episode_pictures(record: EpisodeRecord, folder: Path, stem: str = "episode"
+                           ) -> tuple[Path, Path]:
+    """``<folder>/<stem>.png`` and ``<stem>.gif``, each written whole then renamed in place."""
+    png, gif = folder / f"{stem}.png", folder / f"{stem}.gif"
+    for path, draw in ((png, draw_episode), (gif, animate_episode)):
+        with replacing(path) as temporary:
+            draw(record, temporary)
+    return png, gif
+
+
+def seed_slice(tree: Any, index: int) -> Any:
+    """Seed ``index`` of a state whose leaves carry a leading seed axis."""
+    return jax.tree_util.tree_map(lambda x: x[index], tree)

@@ -1,0 +1,251 @@
+"""Training curves: one panel per metric, mean over seeds with a 95% confidence band.
+
+Used by the train command (``curves.png`` of a run) and by the experiments (one
+curve per variant in the same panels). Matplotlib through ``Figure`` and the Agg
+canvas, never ``pyplot``: no display needed, no global state touched.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
+
+from ccrjax.run.folder import METRIC_RANGES, METRIC_TITLES, replacing
+from ccrjax.run.stats import mean_ci_along
+
+PALETTE = ("#1f6fd1", "#d1495b", "#2a9d8f", "#e9a03b", "#6a4c93", "#8c8c8c")
+CURVE_METRICS = (
+    "success_rate", "target_distance", "danger_frequency", "return", "hazard_distance",
+    "cumulative_danger_steps",
+)
+
+
+def short_number(value: float, _position: int | None = None) -> str:
+    """Axis labels that never run together: 100k, 1.5M, 250."""
+    magnitude = abs(value)
+    for divisor, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if magnitude >= divisor:
+            return f"{value / divisor:g}{suffix}"
+    return f"{value:g}"
+
+
+def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int | None = None) -> None:
+    """Writes ``fig`` to ``path`` whole (:func:`ccrjax.run.folder.replacing`)."""
+    with replacing(path) as temporary:
+        fig.savefig(temporary, dpi=dpi or fig.dpi)
+
+
+class Curves:
+    """The runs to draw: ``label -> (env_steps [P], {metric: values [seeds, P]})``."""
+
+    def __init__(self) -> None:
+        self.series: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
+
+    def add(self, label: str, env_steps: Sequence[int], values: dict[str, np.ndarray]) -> None:
+        steps = np.asarray(env_steps)
+        for name, array in values.items():
+            array = np.asarray(array, dtype=np.float64)
+            if array.ndim != 2 or array.shape[1] != steps.size:
+                raise ValueError(
+                    f"curve {label!r}: {name} must be [seeds, {steps.size}], got {array.shape}"
+                )
+        self.series[label] = (steps, {k: np.asarray(v, np.float64) for k, v in values.items()})
+
+
+def curves_from_rows(rows: Sequence[dict], metrics: Sequence[str] = CURVE_METRICS):
+    """``(env_steps [P], {metric: [seeds, P]})`` from ``metrics.csv`` rows (one per seed and
+    point); the points every seed has."""
+    seeds = sorted({row["seed"] for row in rows})
+    by_seed = {seed: sorted((r for r in rows if r["seed"] == seed), key=lambda r: r["env_steps"])
+               for seed in seeds}
+    length = min(len(v) for v in by_seed.values())
+    steps = np.array([r["env_steps"] for r in by_seed[seeds[0]][:length]])
+    values = {m: np.array([[r[m] for r in by_seed[s][:length]] for s in seeds]) for m in metrics}
+    return steps, values
+
+
+def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
+                metrics: Sequence[str] = CURVE_METRICS, title: str | None = None,
+                dpi: int = 120) -> None:
+    """One panel per metric: each run's mean over seeds, its 95% band, its seeds faint."""
+    columns = min(3, len(metrics))
+    rows = -(-len(metrics) // columns)
+    fig = Figure(figsize=(4.2 * columns, 3.0 * rows + (0.4 if title else 0.0)), dpi=dpi)
+    FigureCanvasAgg(fig)
+    for index, metric in enumerate(metrics):
+        ax = fig.add_subplot(rows, columns, index + 1)
+        for colour_index, (label, (steps, values)) in enumerate(curves.series.items()):
+            if metric not in values:
+                continue
+            colour = PALETTE[colour_index % len(PALETTE)]
+            per_seed = values[metric]
+            bounds = METRIC_RANGES.get(metric, (-np.inf, np.inf))
+            mean, low, high = mean_ci_along(per_seed, axis=0, bounds=bounds)
+            n = per_seed.shape[0]
+            ax.plot(steps, mean, color=colour, linewidth=1.8,
+                    label=f"{label} (n={n} seeds)" if index == 0 else None)
+            if n > 1:
+                ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
+                for seed_values in per_seed:
+                    ax.plot(steps, seed_values, color=colour, linewidth=0.6, alpha=0.3)
+        ax.set_title(METRIC_TITLES.get(metric, metric), fontsize=10)
+        ax.set_xlabel("environment steps per seed", fontsize=8)
+        ax.xaxis.set_major_formatter(FuncFormatter(short_number))
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+        if metric in ("success_rate", "danger_frequency"):
+            ax.set_ylim(-0.02, 1.02)
+    handles, labels = fig.axes[0].get_legend_handles_labels()
+    if title:
+        fig.suptitle(title, fontsize=11)
+    if handles:  # below the panels, never over a curve
+        fig.legend(handles, [f"{label}: mean, 95% CI over seeds (clipped to the metric's range)"
+                             for label in labels],
+                   loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
+        fig.tight_layout(rect=(0, 0.09 / rows, 1, 1))
+    else:
+        fig.tight_layout()
+    save_figure(fig, path, dpi)
+
+
+def draw_rank_bars(series: dict[str, np.ndarray], path: str | os.PathLike[str], *, xlabel: str,
+                   ylabel: str, title: str, colours: Sequence[str] = ("#8c8c8c", "#ff5fa2"),
+                   dpi: int = 130) -> None:
+    """Grouped bars: for each position ``k`` (x) a bar per series, the mean over seeds of
+    ``values[:, k]`` (``series[label]`` is ``[seeds, K]``) with its 95% interval."""
+    fig = Figure(figsize=(6.4, 3.6), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    width = 0.8 / max(1, len(series))
+    for index, (label, values) in enumerate(series.items()):
+        values = np.asarray(values, np.float64)
+        mean, low, high = mean_ci_along(values, axis=0, bounds=(0.0, np.inf))
+        positions = np.arange(1, values.shape[1] + 1) + (index - (len(series) - 1) / 2) * width
+        ax.bar(positions, mean, width=width, yerr=np.stack([mean - low, high - mean]), capsize=3,
+               color=colours[index % len(colours)], label=f"{label} (n={values.shape[0]} seeds)")
+    ax.set_xticks(np.arange(1, values.shape[1] + 1))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
+                            path: str | os.PathLike[str]) -> None:
+    """The paper's behavioural analysis as a figure: per robot in order of arrival at the
+    hidden obstacle, the average distance to its centre (``[seeds, robots]`` each), plain
+    MADDPG against MADDPG+CCR, with 95% intervals over seeds."""
+    draw_rank_bars(
+        {"MADDPG": plain, "MADDPG+CCR": ccr}, path,
+        xlabel="robot, in order of arrival at the obstacle",
+        ylabel="average distance to the obstacle centre",
+        title="hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
+    )
+
+
+PARAMETER_SYMBOLS = {"lam": "λ", "penalty": "penalty"}
+
+
+def _interval(stats: dict) -> tuple[float, float]:
+    """The distances from the mean to the (clipped) ends of a ``mean_ci`` summary."""
+    if stats.get("ci_low") is None:
+        return 0.0, 0.0
+    return stats["mean"] - stats["ci_low"], stats["ci_high"] - stats["mean"]
+
+
+def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
+                         path: str | os.PathLike[str], *, dpi: int = 120) -> None:
+    """Danger frequency against success rate, one point per searched value with its 95%
+    intervals (clipped to [0, 1]), one panel per title in ``panels`` (rows of
+    :func:`ccrjax.run.search.search_rows`). Values are told apart by colour, named once in the
+    legend below the panels, so no label covers another."""
+    titles = list(panels)
+    columns = min(3, len(titles))
+    rows = -(-len(titles) // columns)
+    values = sorted({row["value"] for rows_ in panels.values() for row in rows_})
+    legend_columns = min(len(values), 2 * columns + 1)
+    legend_rows = -(-len(values) // legend_columns)
+    legend_height = 0.45 + 0.25 * legend_rows  # inches
+    fig = Figure(figsize=(4.0 * columns + 0.6, 3.4 * rows + legend_height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    colours = {value: _value_colour(index, len(values)) for index, value in enumerate(values)}
+    symbol = PARAMETER_SYMBOLS.get(parameter, parameter)
+    for index, title in enumerate(titles):
+        ax = fig.add_subplot(rows, columns, index + 1)
+        for row in panels[title]:
+            success, danger = row["success_rate"], row["danger_frequency"]
+            label = f"{symbol} = {row['value']:g}" + (" (plain)" if row["value"] == 0 else "")
+            ax.errorbar(success["mean"], danger["mean"],
+                        xerr=np.array(_interval(success))[:, None],
+                        yerr=np.array(_interval(danger))[:, None],
+                        marker="s" if row["value"] == 0 else "o", capsize=3, linewidth=1,
+                        color=colours[row["value"]], label=label if index == 0 else None)
+        ax.set_xlim(-0.03, 1.03)
+        ax.set_ylim(bottom=-0.01)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("success rate (higher is better)", fontsize=8)
+        ax.set_ylabel("danger frequency (lower is better)", fontsize=8)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+    handles, labels = fig.axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=legend_columns, fontsize=8,
+               frameon=False, title="mean and 95% CI over seeds", title_fontsize=8)
+    fig.tight_layout(rect=(0, legend_height / (3.4 * rows + legend_height), 1, 1))
+    save_figure(fig, path)
+
+
+def _value_colour(index: int, count: int) -> tuple[float, float, float, float]:
+
+    return colormaps["viridis"](index / max(1, count - 1) * 0.9)
+
+
+VARIANT_COLOURS = {"plain": "#8c8c8c", "pessimistic": "#1f6fd1", "ccr": "#ff5fa2"}
+
+
+def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]],
+                          path: str | os.PathLike[str], *, title: str, dpi: int = 120) -> None:
+    """Danger against return along training: one panel per title in ``panels``, one line
+    per variant through its evaluations (``(returns, danger)``, each ``[seeds, points]``),
+    at each point the mean over seeds with 95% intervals in both directions (danger's
+    clipped to [0, 1]); the first evaluation is marked by a square, the last by a disc.
+    Reading across at equal return compares the variants at the same stage of learning:
+    a variant that is safer only because it has progressed less sits to the left on the
+    baseline's own curve."""
+    columns = len(panels)
+    fig = Figure(figsize=(4.4 * columns, 4.0), dpi=dpi)
+    FigureCanvasAgg(fig)
+    for index, (panel, series) in enumerate(panels.items()):
+        ax = fig.add_subplot(1, columns, index + 1)
+        for variant, (returns, danger) in series.items():
+            colour = VARIANT_COLOURS.get(variant, PALETTE[len(ax.lines) % len(PALETTE)])
+            x, x_low, x_high = mean_ci_along(returns, axis=0, bounds=METRIC_RANGES["return"])
+            y, y_low, y_high = mean_ci_along(danger, axis=0,
+                                             bounds=METRIC_RANGES["danger_frequency"])
+            ax.errorbar(x, y, xerr=np.stack([x - x_low, x_high - x]),
+                        yerr=np.stack([y - y_low, y_high - y]), color=colour, linewidth=1.4,
+                        elinewidth=0.6, alpha=0.9, ecolor=colour,
+                        label=f"{variant} (n={returns.shape[0]} seeds)" if index == 0 else None)
+            ax.plot(x[:1], y[:1], marker="s", color=colour, markersize=6)
+            ax.plot(x[-1:], y[-1:], marker="o", color=colour, markersize=7)
+        ax.set_title(panel, fontsize=10)
+        ax.set_xlabel("evaluated return (higher = further along)", fontsize=8)
+        ax.set_ylabel("dangerous-behaviour frequency", fontsize=8)
+        ax.set_ylim(bottom=-0.01)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+    handles, labels = fig.axes[0].get_legend_handles_labels()
+    fig.suptitle(title, fontsize=11)
+    fig.legend(handles, [f"{label}: mean, 95% CI over seeds; ■ first, ● last evaluation"
+                         for label in labels], loc="lower center", ncol=len(handles),
+               fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    save_figure(fig, path)

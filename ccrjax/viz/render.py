@@ -1,0 +1,588 @@
+"""Pictures of one episode: a still of the trajectories and an animated GIF.
+
+The rollout runs in JAX (:func:`record_episode`); everything after it is plain
+numpy and matplotlib on an :class:`EpisodeRecord`, one environment of the batch
+with the time axis first::
+
+    record = record_episode(env, policy, jax.random.key(0))
+    draw_episode(record, "runs/demo/turbulence.png")
+    animate_episode(record, "runs/demo/turbulence.gif")
+
+Robots are coloured by a per-step *state* index. By default every robot is in
+the single state ``"robot"``; the Collective Conditioned Reflex passes its own
+three states (:data:`CCR_STATE_NAMES`, :data:`CCR_STATE_COLOURS`).
+
+Matplotlib is used through ``Figure`` and the Agg canvas directly, never
+``pyplot``, so nothing here needs a display or changes the global backend.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from matplotlib import colors as mcolors
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, FancyArrowPatch, Patch, Rectangle
+from PIL import Image
+
+__all__ = [
+    "CCR_STATE_COLOURS",
+    "CCR_STATE_NAMES",
+    "DEFAULT_STATE_COLOURS",
+    "DEFAULT_STATE_NAMES",
+    "EpisodeRecord",
+    "Policy",
+    "animate_episode",
+    "compile_for",
+    "draw_episode",
+    "record_episode",
+]
+
+# A policy maps the batch's observations ``float[N, F, B]`` and a key to an action.
+Policy = Callable[[jax.Array, jax.Array], jax.Array]
+
+BLUE = "#1f6fd1"
+YELLOW = "#f2c500"
+PINK = "#ff5fa2"
+
+DEFAULT_STATE_NAMES: tuple[str, ...] = ("robot",)
+DEFAULT_STATE_COLOURS: tuple[str, ...] = (BLUE,)
+# The CCR robot states of the paper, in the order of their state index.
+CCR_STATE_NAMES: tuple[str, ...] = ("standby", "sensing danger", "activated")
+CCR_STATE_COLOURS: tuple[str, ...] = (BLUE, YELLOW, PINK)
+
+SCENARIO_TITLES = {
+    "turbulence": "Turbulence",
+    "strong_wind": "Strong wind",
+    "hidden_obstacle": "Hidden obstacle",
+    "nominal": "Nominal (no hazard)",
+}
+HAZARD_COLOURS = {
+    "turbulence": "#e8743b",
+    "strong_wind": "#4fb6c9",
+    "hidden_obstacle": "#6b6b6b",
+    "nominal": "#9a9a9a",
+}
+GOAL_COLOUR = "#2ca02c"
+FAILURE_COLOUR = "#d62728"
+TRAIL_COLOUR = "#8c8c8c"
+
+
+def _pair(name: str, value: Any) -> np.ndarray:
+    array = np.array(value, dtype=np.float64)
+    if array.shape != (2,) or not np.all(np.isfinite(array)):
+        raise ValueError(f"EpisodeRecord.{name} must be a finite (x, y) pair, got {value!r}")
+    array.setflags(write=False)
+    return array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EpisodeRecord:
+    """One environment's episode, as numpy arrays with the time axis first.
+
+    Attributes:
+      scenario: the scenario's name (``turbulence``, ``strong_wind``,
+        ``hidden_obstacle`` or ``nominal``; other names draw no hazard).
+      positions: ``float[T + 1, N, 2]``: every robot's position at every step,
+        the reset's first.
+      robot_radius: disc radius of the robots.
+      goal: the centre of the target area ``(x, y)``.
+      goal_radius: radius of the target area around ``goal``: a robot whose
+        centre is inside it at the last step succeeded.
+      hazard_centre: ``float[2]``.
+      hazard_half_extent: ``float[2]`` (a circle's radius twice; a rectangle's
+        half width and half height).
+      hazard_direction: ``float[2]`` unit wind direction (zero elsewhere).
+      states: ``int[T + 1, N]``: each robot's state index at each step, an index
+        into ``state_names`` and ``state_colours``.
+      state_names: the legend's name of every state.
+      state_colours: a matplotlib colour for every state.
+
+    Arrays are copied and made read-only; a malformed record raises ``ValueError``.
+    """
+
+    scenario: str
+    positions: np.ndarray
+    robot_radius: float
+    goal: tuple[float, float]
+    goal_radius: float
+    hazard_centre: np.ndarray
+    hazard_half_extent: np.ndarray
+    hazard_direction: np.ndarray
+    states: np.ndarray
+    state_names: tuple[str, ...] = DEFAULT_STATE_NAMES
+    state_colours: tuple[str, ...] = DEFAULT_STATE_COLOURS
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scenario, str) or not self.scenario:
+            raise ValueError(f"EpisodeRecord.scenario must be a name, got {self.scenario!r}")
+        positions = np.array(self.positions, dtype=np.float64)
+        if positions.ndim != 3 or positions.shape[2] != 2 or positions.shape[0] < 1:
+            raise ValueError(
+                "EpisodeRecord.positions must be float[T + 1, N, 2], "
+                f"got shape {list(positions.shape)}"
+            )
+        if positions.shape[1] < 1:
+            raise ValueError("EpisodeRecord.positions must hold at least one robot")
+        if not np.all(np.isfinite(positions)):
+            raise ValueError("EpisodeRecord.positions must be finite")
+        positions.setflags(write=False)
+        for name in ("robot_radius", "goal_radius"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float | np.floating) and math.isfinite(value)
+                    and value > 0):
+                raise ValueError(f"EpisodeRecord.{name} must be a finite number > 0, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        goal = _pair("goal", self.goal)
+        centre = _pair("hazard_centre", self.hazard_centre)
+        half_extent = _pair("hazard_half_extent", self.hazard_half_extent)
+        if np.any(half_extent < 0):
+            raise ValueError(
+                f"EpisodeRecord.hazard_half_extent must be >= 0, got {self.hazard_half_extent!r}"
+            )
+        direction = _pair("hazard_direction", self.hazard_direction)
+
+        names, colours = tuple(self.state_names), tuple(self.state_colours)
+        if not names or not all(isinstance(n, str) for n in names):
+            raise ValueError(f"EpisodeRecord.state_names must be non-empty strings, got {names!r}")
+        if len(colours) != len(names):
+            raise ValueError(
+                f"EpisodeRecord.state_colours must have one colour per state ({len(names)}), "
+                f"got {len(colours)}"
+            )
+        for colour in colours:
+            if not mcolors.is_color_like(colour):
+                raise ValueError(f"EpisodeRecord.state_colours: {colour!r} is not a colour")
+
+        states = np.asarray(self.states)
+        if states.shape != positions.shape[:2]:
+            raise ValueError(
+                f"EpisodeRecord.states must be int[T + 1, N] = {list(positions.shape[:2])} "
+                f"like positions, got shape {list(states.shape)}"
+            )
+        if states.dtype == bool or not np.issubdtype(states.dtype, np.integer):
+            raise ValueError(f"EpisodeRecord.states must be integers, got {states.dtype}")
+        if states.size and (states.min() < 0 or states.max() >= len(names)):
+            raise ValueError(
+                f"EpisodeRecord.states must lie in [0, {len(names) - 1}] (one per state name), "
+                f"got values in [{states.min()}, {states.max()}]"
+            )
+        states = states.astype(np.int32)
+        states.setflags(write=False)
+
+        object.__setattr__(self, "positions", positions)
+        object.__setattr__(self, "goal", (float(goal[0]), float(goal[1])))
+        object.__setattr__(self, "hazard_centre", centre)
+        object.__setattr__(self, "hazard_half_extent", half_extent)
+        object.__setattr__(self, "hazard_direction", direction)
+        object.__setattr__(self, "states", states)
+        object.__setattr__(self, "state_names", names)
+        object.__setattr__(self, "state_colours", colours)
+
+    @property
+    def num_steps(self) -> int:
+        """``T``, the number of steps taken (``positions`` holds ``T + 1``)."""
+        return self.positions.shape[0] - 1
+
+    @property
+    def num_robots(self) -> int:
+        """``N``."""
+        return self.positions.shape[1]
+
+    @property
+    def succeeded(self) -> np.ndarray:
+        """``bool[N]``: each robot ends inside the target area (the task's success)."""
+        offset = self.positions[-1] - np.asarray(self.goal)
+        return np.hypot(offset[:, 0], offset[:, 1]) < self.goal_radius
+
+
+# --------------------------------------------------------------------------- rollout
+StatesArg = np.ndarray | jax.Array | Callable[[Any], Any] | None
+
+
+def record_episode(
+    env: Any,
+    policy: Policy,
+    key: jax.Array,
+    env_index: int = 0,
+    states: StatesArg = None,
+    *,
+    state_names: Sequence[str] = DEFAULT_STATE_NAMES,
+    state_colours: Sequence[str] = DEFAULT_STATE_COLOURS,
+    optimize: bool = False,
+) -> EpisodeRecord:
+    """Resets ``env``, runs one episode, and records environment ``env_index``.
+
+    The ``env.episode_length`` steps run with ``env.transition`` (no automatic
+    reset) inside one jitted ``lax.scan``.
+
+    Args:
+      env: a :class:`ccrjax.envs.env.CCREnv`.
+      policy: a pure function ``(obs float[N, F, B], key) -> action`` of the
+        env's action layout; it is traced once.
+      key: PRNG key for the reset and the policy.
+      env_index: which environment of the batch to record.
+      states: the robots' state indices: ``None`` (all 0), an int array
+        ``[T + 1, N]`` or ``[T + 1, N, B]``, or a function of the stacked
+        brax states (every leaf with a leading ``T + 1`` axis, the reset's
+        first) that returns such an array.
+      state_names: legend names of the states.
+      state_colours: matplotlib colours of the states.
+      optimize: compile the rollout with XLA's full backend optimisation. By
+        default it is compiled at optimisation level 0, which on CPU halves the
+        compile time (most of a recording's cost); positions may then differ from
+        an optimised rollout's by float32 rounding (we saw about 1e-7 relative).
+
+    Returns:
+      The :class:`EpisodeRecord` of environment ``env_index``.
+    """
+    num_envs = int(env.num_envs)
+    if isinstance(env_index, bool) or not isinstance(env_index, int | np.integer) or not (
+        0 <= env_index < num_envs
+    ):
+        raise ValueError(f"env_index must be an integer in [0, {num_envs - 1}], got {env_index!r}")
+    env_index = int(env_index)
+    keep_trajectory = callable(states)
+    steps = int(env.episode_length)
+
+    def rollout(key: jax.Array) -> tuple[Any, Any]:
+        reset_key, policy_key = jax.random.split(key)
+        first = env.reset(reset_key)
+
+        def body(state: Any, step_key: jax.Array) -> tuple[Any, Any]:
+            state = env.transition(state, policy(state.obs, step_key))
+            return state, (state if keep_trajectory else state.pipeline_state.position)
+
+        _, stacked = jax.lax.scan(body, first, jax.random.split(policy_key, steps))
+        if keep_trajectory:
+            trajectory = jax.tree.map(
+                lambda a, b: jnp.concatenate([a[None], b]), first, stacked
+            )
+        else:
+            trajectory = jnp.concatenate([first.pipeline_state.position[None], stacked])
+        return first.pipeline_state.hazard, trajectory
+
+    hazard, trajectory = compile_for(rollout, (key,), optimize)(key)
+    positions = trajectory.pipeline_state.position if keep_trajectory else trajectory
+    positions = np.asarray(positions)[..., env_index]  # [T + 1, N, 2]
+
+    if states is None:
+        state_index = np.zeros(positions.shape[:2], np.int32)
+    else:
+        state_index = np.asarray(states(trajectory) if keep_trajectory else states)
+        if state_index.ndim == 3:
+            if state_index.shape[2] != num_envs:
+                raise ValueError(
+                    f"states must be int[T + 1, N] or int[T + 1, N, {num_envs}], "
+                    f"got shape {list(state_index.shape)}"
+                )
+            state_index = state_index[..., env_index]
+
+    layout = env.layout
+    return EpisodeRecord(
+        scenario=env.scenario.name,
+        positions=positions,
+        robot_radius=float(env.robot_radius),
+        goal=tuple(float(v) for v in layout.goal),
+        goal_radius=float(layout.goal_radius),
+        hazard_centre=np.asarray(hazard.centre)[:, env_index],
+        hazard_half_extent=np.asarray(hazard.half_extent)[:, env_index],
+        hazard_direction=np.asarray(hazard.direction)[:, env_index],
+        states=state_index,
+        state_names=tuple(state_names),
+        state_colours=tuple(state_colours),
+    )
+
+
+def compile_for(
+    function: Callable[..., Any], examples: tuple, optimize: bool = False
+) -> Callable[..., Any]:
+    """``jax.jit(function)`` compiled for the arguments ``examples``; unoptimised unless
+    ``optimize`` (on CPU that halves the compile time, most of what a recording costs)."""
+    lowered = jax.jit(function).lower(*examples)
+    if not optimize:
+        try:
+            return lowered.compile(compiler_options={"xla_backend_optimization_level": 0})
+        except Exception:  # an XLA without this option: compile normally
+            pass
+    return lowered.compile()
+
+
+# --------------------------------------------------------------------------- drawing
+def _extent(record: EpisodeRecord, margin: float = 0.25) -> tuple[float, float, float, float]:
+    """Axis limits holding the robots, the hazard and the target, with a margin."""
+    xs = [record.positions[..., 0].min(), record.positions[..., 0].max()]
+    ys = [record.positions[..., 1].min(), record.positions[..., 1].max()]
+    reach = record.goal_radius
+    xs += [record.goal[0] - reach, record.goal[0] + reach]
+    ys += [record.goal[1] - reach, record.goal[1] + reach]
+    half = record.hazard_half_extent
+    xs += [record.hazard_centre[0] - half[0], record.hazard_centre[0] + half[0]]
+    ys += [record.hazard_centre[1] - half[1], record.hazard_centre[1] + half[1]]
+    pad = margin + record.robot_radius
+    return min(xs) - pad, max(xs) + pad, min(ys) - pad, max(ys) + pad
+
+
+def _draw_hazard(ax: Any, record: EpisodeRecord) -> list[Any]:
+    """Draws the scenario's hazard and returns its legend handles."""
+    centre, half = record.hazard_centre, record.hazard_half_extent
+    colour = HAZARD_COLOURS.get(record.scenario, "#9a9a9a")
+    corner = (centre[0] - half[0], centre[1] - half[1])
+    if record.scenario == "turbulence":
+        ax.add_patch(Circle(tuple(centre), half[0], facecolor=colour, alpha=0.25,
+                            edgecolor=colour, linewidth=1.5, zorder=1))
+        return [Patch(facecolor=colour, alpha=0.35, edgecolor=colour, label="turbulence area")]
+    if record.scenario == "strong_wind":
+        ax.add_patch(Rectangle(corner, 2 * half[0], 2 * half[1], facecolor=colour, alpha=0.25,
+                               edgecolor=colour, linewidth=1.5, zorder=1))
+        direction = record.hazard_direction
+        norm = float(np.hypot(*direction))
+        if norm > 0:
+            arm = 0.75 * float(min(half)) * direction / norm
+            ax.add_patch(FancyArrowPatch(tuple(centre - arm), tuple(centre + arm),
+                                         arrowstyle="-|>", mutation_scale=18, linewidth=2.2,
+                                         color="#1d6f80", zorder=2))
+        wind = Line2D([], [], color="#1d6f80", marker=">", linewidth=2, label="wind direction")
+        area = Patch(facecolor=colour, alpha=0.35, edgecolor=colour, label="strong wind area")
+        return [area, wind]
+    if record.scenario == "hidden_obstacle":
+        ax.add_patch(Rectangle(corner, 2 * half[0], 2 * half[1], facecolor=colour, alpha=0.55,
+                               edgecolor="none", zorder=1))
+        ax.add_patch(Rectangle(corner, 2 * half[0], 2 * half[1], facecolor="none",
+                               edgecolor="#333333", linestyle="--", linewidth=1.5,
+                               hatch="//", zorder=1))
+        return [Patch(facecolor=colour, alpha=0.6, edgecolor="#333333", linestyle="--",
+                      hatch="//", label="hidden obstacle")]
+    ax.plot(*centre, marker="x", color=colour, markersize=9, alpha=0.6, linestyle="none",
+            zorder=1)
+    return [Line2D([], [], marker="x", color=colour, alpha=0.6, linestyle="none",
+                   label="virtual hazard centre")]
+
+
+def _draw_target(ax: Any, record: EpisodeRecord) -> list[Any]:
+    """Draws the target area (success: inside it at the end) and returns its legend handle."""
+    ax.add_patch(Circle(record.goal, record.goal_radius, facecolor=GOAL_COLOUR, alpha=0.2,
+                        edgecolor=GOAL_COLOUR, linewidth=1.5, zorder=1))
+    return [Patch(facecolor=GOAL_COLOUR, alpha=0.3, edgecolor=GOAL_COLOUR,
+                  label="target area")]
+
+
+def _draw_outcomes(ax: Any, record: EpisodeRecord, size: float) -> list[Any]:
+    """Marks each robot's end: a green ring if it succeeded, a red cross if not."""
+    end = record.positions[-1]
+    ok = record.succeeded
+    if ok.any():
+        ax.plot(end[ok, 0], end[ok, 1], marker="o", markersize=size, markerfacecolor="none",
+                markeredgecolor=GOAL_COLOUR, markeredgewidth=1.8, linestyle="none", zorder=7)
+    if (~ok).any():
+        ax.plot(end[~ok, 0], end[~ok, 1], marker="x", markersize=size, color=FAILURE_COLOUR,
+                markeredgewidth=2.0, linestyle="none", zorder=7)
+    return [
+        Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor=GOAL_COLOUR,
+               markeredgewidth=1.8, linestyle="none", label=f"succeeded ({int(ok.sum())})"),
+        Line2D([], [], marker="x", color=FAILURE_COLOUR, markeredgewidth=2.0,
+               linestyle="none", label=f"failed ({int((~ok).sum())})"),
+    ]
+
+
+def _new_figure(
+    record: EpisodeRecord, width: float, legend: float, dpi: int
+) -> tuple[Figure, Any, list[Any]]:
+    """A figure ``width`` inches wide: equal-aspect axes, then a legend column on the right.
+
+    The height follows the data's aspect ratio (within bounds), so that the axes
+    fill their width without empty bands. Returns the figure, the axes with the
+    hazard and target drawn, and their legend handles.
+    """
+    left, right, bottom, top = 0.65, legend + 0.15, 0.5, 0.4  # margins, inches
+    x0, x1, y0, y1 = _extent(record)
+    axes_width = width - left - right
+    axes_height = float(np.clip(axes_width * (y1 - y0) / (x1 - x0), 1.5, 1.2 * width))
+    height = axes_height + bottom + top
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((left / width, bottom / height, axes_width / width, axes_height / height))
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal", anchor="W")
+    ax.grid(True, color="#e6e6e6", linewidth=0.6, zorder=0)
+    ax.set_axisbelow(True)
+    ax.set_xlabel("x", labelpad=1)
+    ax.set_ylabel("y", labelpad=1)
+    handles = _draw_hazard(ax, record) + _draw_target(ax, record)
+    return fig, ax, handles
+
+
+def _add_legend(fig: Figure, handles: list[Any], legend: float, fontsize: float) -> None:
+    """The legend in the right-hand column reserved by :func:`_new_figure`."""
+    width, height = fig.get_size_inches()
+    fig.legend(handles=handles, loc="upper left", fontsize=fontsize, frameon=False,
+               bbox_to_anchor=(1.0 - legend / width, 1.0 - 0.35 / height), borderaxespad=0.0,
+               handletextpad=0.4)
+
+
+def _state_handles(record: EpisodeRecord, used_only: bool = False) -> list[Any]:
+    used = set(np.unique(record.states).tolist()) if used_only else None
+    return [
+        Line2D([], [], marker="o", color=colour, markeredgecolor="white", linestyle="none",
+               markersize=8, label=name)
+        for index, (name, colour) in enumerate(zip(record.state_names, record.state_colours,
+                                                   strict=True))
+        if used is None or index in used
+    ]
+
+
+def _title(record: EpisodeRecord) -> str:
+    name = SCENARIO_TITLES.get(record.scenario, record.scenario)
+    return f"{name}: {record.num_robots} robots, {record.num_steps} steps"
+
+
+def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
+                 dpi: int = 150) -> None:
+    """Draws the whole episode to a PNG: hazard, target, and every robot's trajectory.
+
+    Each robot's path is a grey line with a point per step in the colour of the
+    robot's state at that step; a hollow square marks its start and a disc of
+    its real radius, in its final state's colour, its end, ringed in green if the
+    robot ends in the target area (a success) and crossed in red if not.
+    """
+    fig, ax, handles = _new_figure(record, 9.0, 2.0, dpi)
+    colours = np.array([mcolors.to_rgba(c) for c in record.state_colours])
+    positions = record.positions
+    for robot in range(record.num_robots):
+        path = positions[:, robot]
+        ax.plot(path[:, 0], path[:, 1], color=TRAIL_COLOUR, linewidth=1.0, alpha=0.8, zorder=3)
+        ax.scatter(path[:, 0], path[:, 1], s=11, c=colours[record.states[:, robot]],
+                   edgecolors="none", zorder=4)
+        ax.plot(*path[0], marker="s", markersize=7, markerfacecolor="white",
+                markeredgecolor="black", markeredgewidth=1.2, linestyle="none", zorder=5)
+        ax.add_patch(Circle(tuple(path[-1]), record.robot_radius,
+                            facecolor=colours[record.states[-1, robot]],
+                            edgecolor="black", linewidth=1.2, zorder=6))
+    handles = _state_handles(record) + [
+        Line2D([], [], marker="s", markerfacecolor="white", markeredgecolor="black",
+               linestyle="none", label="start"),
+        Line2D([], [], marker="o", markerfacecolor="#dddddd", markeredgecolor="black",
+               markersize=9, linestyle="none", label="end (robot size)"),
+    ] + _draw_outcomes(ax, record, 12) + handles
+    _add_legend(fig, handles, 2.0, 8)
+    ax.set_title(_title(record))
+    fig.savefig(os.fspath(path_png), dpi=dpi)
+
+
+def _palette(frame: np.ndarray, colours: Sequence[Any], size: int = 64) -> np.ndarray:
+    """One GIF palette ``uint8[size, 3]`` for every frame: exact ``colours`` plus the frame's.
+
+    White, black and ``colours`` are kept exactly, with a few blends towards
+    white for anti-aliased edges; median cut of ``frame`` (the first one) fills
+    the rest. A shared palette makes frames differ only where robots move, so
+    the GIF encoder stores small changed rectangles instead of whole frames.
+    """
+    exact = [(255, 255, 255), (0, 0, 0)]
+    for colour in colours:
+        rgb = np.array(mcolors.to_rgb(colour)) * 255
+        for weight in (1.0, 0.6, 0.3):
+            blend = tuple(int(round(v)) for v in weight * rgb + (1 - weight) * 255)
+            if blend not in exact:
+                exact.append(blend)
+    exact = exact[: size - 8]
+    rest = Image.fromarray(frame).quantize(
+        colors=size - len(exact), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE
+    )
+    rest_rgb = np.array(rest.getpalette()[: 3 * (size - len(exact))], np.uint8).reshape(-1, 3)
+    return np.concatenate([np.array(exact, np.uint8), rest_rgb])
+
+
+def _indexed(frame: np.ndarray, palette: np.ndarray) -> Image.Image:
+    """``frame`` ``uint8[H, W, 3]`` as a palette image, each pixel its nearest palette colour.
+
+    Exact nearest colours (Pillow's own mapping is approximate and turns white
+    into off-white), computed once per distinct colour of the frame.
+    """
+    packed = (frame[..., 0].astype(np.int32) << 16) | (frame[..., 1].astype(np.int32) << 8)
+    packed |= frame[..., 2]
+    unique, inverse = np.unique(packed.ravel(), return_inverse=True)
+    rgb = np.stack([unique >> 16, (unique >> 8) & 255, unique & 255], axis=-1)
+    distance = ((rgb[:, None, :] - palette[None].astype(np.int32)) ** 2).sum(axis=-1)
+    index = distance.argmin(axis=1).astype(np.uint8)[inverse].reshape(frame.shape[:2])
+    image = Image.fromarray(index, mode="P")
+    image.putpalette(palette.ravel().tolist())
+    return image
+
+
+def _outcome_artists(ax: Any, record: EpisodeRecord) -> list[Any]:
+    """The end markers of :func:`_draw_outcomes`, as artists drawn on the last frame only."""
+    before = set(ax.lines)
+    _draw_outcomes(ax, record, 10)
+    return [line for line in ax.lines if line not in before]
+
+
+def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
+                    fps: int = 10, dpi: int = 100, trail: int | None = None) -> None:
+    """Writes the episode as an animated GIF with one frame per recorded step.
+
+    Robots are discs of their real radius, coloured by their current state,
+    each followed by a grey trail of its last ``trail`` steps (all by default).
+    Frames share one 64-colour palette, which keeps 50 steps well below 2 MB.
+    """
+    if isinstance(fps, bool) or not isinstance(fps, int) or not 1 <= fps <= 100:
+        raise ValueError(f"fps must be an integer in [1, 100], got {fps!r}")
+    if trail is not None and (isinstance(trail, bool) or not isinstance(trail, int) or trail < 0):
+        raise ValueError(f"trail must be None or an integer >= 0, got {trail!r}")
+    fig, ax, handles = _new_figure(record, 6.4, 1.45, dpi)
+    canvas = fig.canvas
+    _add_legend(fig, _state_handles(record) + handles, 1.45, 7)
+    ax.set_title(_title(record), fontsize=10)
+    colours = [mcolors.to_rgba(c) for c in record.state_colours]
+    positions = record.positions
+    trails = [ax.plot([], [], color=TRAIL_COLOUR, linewidth=1.0, zorder=3)[0]
+              for _ in range(record.num_robots)]
+    discs = [ax.add_patch(Circle(tuple(positions[0, robot]), record.robot_radius,
+                                 edgecolor="black", linewidth=0.8, zorder=5))
+             for robot in range(record.num_robots)]
+    clock = ax.text(0.01, 0.99, "", transform=ax.transAxes, ha="left", va="top", fontsize=8,
+                    family="monospace", zorder=7)
+
+    # Blitting: draw the static picture (and settle the layout) once, then per frame
+    # restore it and draw only the moving artists, about ten times faster.
+    moving = [*trails, *discs, clock]
+    for artist in moving:
+        artist.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+
+    palette = None
+    frames = []
+    for step in range(record.num_steps + 1):
+        start = 0 if trail is None else max(0, step - trail)
+        for robot in range(record.num_robots):
+            path = positions[start:step + 1, robot]
+            trails[robot].set_data(path[:, 0], path[:, 1])
+            discs[robot].center = tuple(positions[step, robot])
+            discs[robot].set_facecolor(colours[record.states[step, robot]])
+        clock.set_text(f"t = {step:3d}")
+        canvas.restore_region(background)
+        for artist in moving:
+            ax.draw_artist(artist)
+        if step == record.num_steps:
+            for artist in _outcome_artists(ax, record):
+                ax.draw_artist(artist)
+        rgb = np.asarray(canvas.buffer_rgba())[..., :3].copy()
+        if palette is None:
+            palette = _palette(rgb, [*record.state_colours, TRAIL_COLOUR, GOAL_COLOUR,
+                                     FAILURE_COLOUR])
+        frames.append(_indexed(rgb, palette))
+    duration = round(1000 / fps)
+    # Hold the last frame (with the outcomes marked) a second longer.
+    frames.append(frames[-1])
+    frames[0].save(os.fspath(path_gif), save_all=True, append_images=frames[1:],
+                   duration=duration, loop=0, optimize=False, disposal=1)

@@ -1,0 +1,62 @@
+"""The figures (:mod:`ccrjax.viz.plots`) at a small size: they render, their axes read, and
+their intervals stay within each metric's range."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from matplotlib.axes import Axes
+from PIL import Image
+
+from ccrjax.viz import plots
+
+
+@pytest.mark.parametrize("value, text", [(250, "250"), (100_000, "100k"), (1_500_000, "1.5M"),
+                                         (3e9, "3G"), (0, "0"), (-20_000, "-20k")])
+def test_axis_numbers_are_short(value, text):
+    assert plots.short_number(value) == text
+
+
+def is_picture(path) -> bool:
+    with Image.open(path) as image:
+        return image.format == "PNG" and np.unique(np.asarray(image.convert("L"))).size > 10
+
+
+def test_curves_bands_stay_in_range(tmp_path, monkeypatch):
+    """Success rates at 1 with spread: the drawn band never passes 1 (nor below 0)."""
+    bands = []
+    original = Axes.fill_between
+
+    def spy(self, x, low, high, **kwargs):
+        bands.append((np.asarray(low), np.asarray(high)))
+        return original(self, x, low, high, **kwargs)
+
+    monkeypatch.setattr(Axes, "fill_between", spy)
+    curves = plots.Curves()
+    success = np.array([[0.0, 0.9, 1.0], [0.1, 1.0, 1.0], [0.0, 1.0, 0.98]])
+    curves.add("plain", [0, 100_000, 200_000], {"success_rate": success,
+                                                "danger_frequency": 1 - success})
+    path = tmp_path / "curves.png"
+    plots.draw_curves(curves, path, metrics=("success_rate", "danger_frequency"))
+    assert is_picture(path)
+    assert len(bands) == 2
+    for low, high in bands:
+        assert low.min() >= 0.0 and high.max() <= 1.0
+
+
+def test_search_and_progress_figures_render(tmp_path):
+    def stats(mean):
+        return {"mean": mean, "ci_low": max(0.0, mean - 0.1), "ci_high": min(1.0, mean + 0.1)}
+
+    rows = [{"value": v, "success_rate": stats(s), "danger_frequency": stats(d)}
+            for v, s, d in ((0.0, 0.9, 0.3), (1.0, 0.85, 0.2), (10.0, 0.5, 0.05))]
+    path = tmp_path / "tradeoff.png"
+    plots.draw_search_tradeoff({"a": rows, "b": rows}, "lam", path)
+    assert is_picture(path)
+    rng = np.random.default_rng(0)
+    returns = -40 + np.cumsum(rng.random((3, 6)), axis=1)
+    danger = rng.random((3, 6)) * 0.3
+    path = tmp_path / "progress.png"
+    plots.draw_progress_matched({"MADDPG": {"plain": (returns, danger),
+                                            "ccr": (returns, danger / 2)}}, path, title="t")
+    assert is_picture(path)
