@@ -110,7 +110,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         drawings = []
         for name, key in zip(DEMO_SCENARIOS, keys, strict=True):
             env = CCREnv(name, num_robots=args.robots, num_envs=1, episode_length=args.steps)
-            record = record_episode(env, random_policy, key)
+            record = record_episode(env, random_policy, key,
+                                    caption="random actions (an untrained team)")
             drawings.append(painter.submit(draw, name, record))
         for drawing in drawings:
             drawing.result()

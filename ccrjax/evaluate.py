@@ -76,7 +76,9 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
     try:
-        restored = checkpoints.restore_latest(abstract_state, fingerprint(spec.to_dict()))
+        # Evaluation needs the policies, not the replay buffers: those are left on disk.
+        restored = checkpoints.restore_latest(abstract_state.replace(buffer=None), None,
+                                              fingerprint(spec.to_dict()))
     except CheckpointError as error:
         raise UsageError(str(error)) from None
     finally:
@@ -109,7 +111,9 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
     print(summary_table(summary))
     if pictures:
         key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
-        record = record_trained_episode(program, seed_slice(state, 0), key)
+        record = record_trained_episode(
+            program, seed_slice(state, 0), key,
+            caption=f"seed {seeds[0]}, a fresh evaluation episode, deterministic policy")
         png, gif = write_episode_pictures(record, folder.path)
         print(f"\npictures: {png}  {gif}")
     return 0

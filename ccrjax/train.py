@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib.util
+import json
 import math
 import os
 import signal
@@ -44,6 +45,7 @@ from ccrjax import cli
 from ccrjax.agents import ALGOS
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
+from ccrjax.agents.replay import grow
 from ccrjax.cli import UsageError
 from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
@@ -129,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "whole evaluation intervals (default: 100000)")
     folder.add_argument("--keep-checkpoints", type=cli.int_in(1, 1000), default=None,
                         help="how many of the latest checkpoints to keep (default: 2)")
+    folder.add_argument("--keep-buffer", action="store_true",
+                        help="keep the replay buffer in a finished run's last checkpoint (it "
+                        "is dropped by default: only extending the run exactly needs it)")
     folder.add_argument("--no-progress", action="store_true",
                         help="one line per evaluation instead of a progress bar")
     folder.add_argument("--compilation-cache", default=cli.default_cache_dir(), metavar="DIR",
@@ -253,13 +258,25 @@ def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
         except (OSError, ValueError, KeyError, TypeError) as error:
             raise UsageError(f"--resume: cannot read {folder.config_path}: {error}") from None
         spec = resolve(args, saved)
-        changed = differences(saved.to_dict(), spec.to_dict())
+        asked, budget = spec.train.total_env_steps, saved.train.total_env_steps
+        if asked < budget:
+            raise UsageError(f"--resume --steps {asked:,}: the run's budget is {budget:,} "
+                             "environment steps per seed; a run can be extended, not shortened")
+        same_budget = dataclasses.replace(spec, train=dataclasses.replace(
+            spec.train, total_env_steps=budget))
+        changed = differences(saved.to_dict(), same_budget.to_dict())
         if changed:
             raise UsageError(
                 f"--resume: options contradict the run in {folder.path} ("
-                + "; ".join(changed) + "); a run resumes with its own configuration"
+                + "; ".join(changed) + "); a run resumes with its own configuration "
+                "(only --steps may grow, to extend it)"
             )
         check_writable(folder.path)
+        if asked > budget:  # the extension is recorded where the run is described
+            record.setdefault("extensions", []).append(
+                {"from_total_env_steps": budget, "to_total_env_steps": asked,
+                 "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+            record["schedule"] = spec.train.schedule()
         return folder, spec, record
     spec = resolve(args, None)
     if folder.holds_run():
@@ -387,8 +404,10 @@ def physical_memory() -> int | None:
         return None
 
 
-def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: bool) -> int:
-    """Trains (or resumes) the run in ``folder``; returns the exit status."""
+def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: bool,
+              keep_buffer: bool = False) -> int:
+    """Trains (or resumes) the run in ``folder``; returns the exit status. The finished
+    run's last checkpoint keeps its replay buffer only with ``keep_buffer``."""
     config = spec.train
     program = make_train(config)
     seeds = spec.seed_list
@@ -405,6 +424,9 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
     run_record = spec.to_dict()
     run_fingerprint = fingerprint(run_record)
     resuming = record is not None
+    if resuming and record.get("run") != json.loads(json.dumps(run_record)):  # extended
+        record["run"] = run_record
+        folder.write_config(record)
     if record is None:  # a new run
         record = {**environment_record(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "command": " ".join([PROG, *sys.argv[1:]]) if sys.argv else PROG,
@@ -424,13 +446,35 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
         raise UsageError(f"{folder.config_path} does not match the run it describes")
     if checkpoints.steps():
         try:
-            restored = checkpoints.restore_latest(abstract_state, run_fingerprint)
+            restored = checkpoints.restore_latest(abstract_state.replace(buffer=None),
+                                                  abstract_state.buffer, run_fingerprint)
         except CheckpointError as error:  # IncompatibleCheckpoint included
             raise UsageError(f"--resume: {error}") from None
         for step, why in restored.skipped:
             print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
                   f"checkpoint {restored.step}", file=sys.stderr, flush=True)
-        state = restored.state
+        buffer = restored.buffer
+        capacity = abstract_state.buffer.reward.shape[1]
+        if buffer is not None and buffer.reward.shape[1] < capacity:
+            # Extended: the buffer was sized to the shorter run's transitions and never
+            # wrapped; in the longer run's larger ring it holds the same, as it would have.
+            buffer = jax.jit(jax.vmap(lambda b: grow(b, capacity)))(buffer)
+            print(f"extending the run to {config.total_env_steps_run:,} steps per seed: "
+                  "its replay buffer grows as it would have in a run started with this "
+                  "budget", file=sys.stderr, flush=True)
+        if buffer is not None and jax.tree_util.tree_map(
+                lambda x: x.shape, buffer) != jax.tree_util.tree_map(
+                lambda x: x.shape, abstract_state.buffer):
+            raise UsageError(f"--resume: checkpoint {restored.step:,} holds a replay buffer "
+                             "of another shape than this run's")
+        if buffer is None:  # an older checkpoint, or a finished run's last one
+            buffer = jax.jit(jax.vmap(program.init))(keys).buffer
+            if restored.step < total_chunks * chunk_steps:
+                print(f"checkpoint {restored.step:,} kept no replay buffer (only the latest "
+                      "checkpoint of a run in progress does): training goes on from an empty "
+                      "buffer, so the result will differ from an uninterrupted run's",
+                      file=sys.stderr, flush=True)
+        state = restored.state.replace(buffer=buffer)
         history = restored.meta["history"]
         wall_before = float(restored.meta["wall_time_s"])
         folder.rewrite_metrics(history)
@@ -466,9 +510,13 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
         folder.open_tensorboard(seeds, purge_step=int(history[-1]["env_steps"]) + 1)
     done_chunks = int(history[-1]["env_steps"]) // chunk_steps
 
+    def finished_at(step: int) -> bool:
+        return step >= total_chunks * chunk_steps
+
     def save(current_state) -> None:
         meta = {"fingerprint": run_fingerprint, "history": history, "wall_time_s": wall()}
-        checkpoints.save(int(history[-1]["env_steps"]), current_state, meta)
+        checkpoints.save(int(history[-1]["env_steps"]), current_state.replace(buffer=None),
+                         current_state.buffer, meta)
 
     progress = Progress(total_chunks * chunk_steps, len(seeds), done_chunks * chunk_steps,
                         progress_bar)
@@ -508,6 +556,13 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
         progress.close()
         checkpoints.wait()
         saved = checkpoints.steps()
+        if saved and finished_at(saved[-1]) and not keep_buffer:
+            # A finished run needs no replay buffer, unless it is to be extended exactly.
+            freed = checkpoints.drop_buffer(saved[-1])
+            if freed:
+                print(f"the finished run's replay buffer ({freed / 2**20:,.0f} MiB) is not "
+                      "kept (--keep-buffer keeps it, to extend the run exactly with --resume "
+                      "--steps)", file=sys.stderr, flush=True)
         checkpoints.close()
         folder.close_tensorboard()
     if status != 0:
@@ -546,7 +601,9 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     draw_curves(curves, folder.path / "curves.png",
                 title=f"{config.scenario}: {label}, {len(seeds)} seed(s)")
     key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
-    record = record_trained_episode(program, seed_slice(state, 0), key)
+    record = record_trained_episode(
+        program, seed_slice(state, 0), key,
+        caption=f"seed {seeds[0]}, a fresh evaluation episode, deterministic policy")
     png, gif = write_episode_pictures(record, folder.path)
     policy = export_policy(folder.path, program, state.learner, list(seeds))
     print_summary(summary, folder)
@@ -573,8 +630,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     cli.enable_compilation_cache(None if args.no_compilation_cache else args.compilation_cache)
     try:
         folder, spec, record = open_folder(args)
-        return train_run(folder, spec, record, progress_bar=(not args.no_progress)
-                         and sys.stderr.isatty())
+        return train_run(folder, spec, record,
+                         progress_bar=(not args.no_progress) and sys.stderr.isatty(),
+                         keep_buffer=args.keep_buffer)
     except UsageError as error:
         cli.fail(PROG, str(error))
     except ValueError as error:  # a configuration value the dataclasses refuse

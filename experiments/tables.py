@@ -214,6 +214,7 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
         cell["episode"] = {  # the first recorded episode of the first seed, for pictures
             "position": episodes["position"][0, ..., 0].tolist(),
             "success": episodes["success"][0, :, 0].tolist(),
+            "danger": (episodes["danger"][0, ..., 0] > 0).tolist(),  # [T, N]
             "hazard_centre": episodes["hazard_centre"][0, :, 0].tolist(),
             "hazard_half_extent": episodes["hazard_half_extent"][0, :, 0].tolist(),
             "ccr_state": (episodes["ccr_state"][0, ..., 0].tolist()
@@ -660,6 +661,9 @@ def _record(cell: dict) -> EpisodeRecord:
         hazard_half_extent=np.asarray(episode["hazard_half_extent"]),
         hazard_direction=np.zeros(2), states=states,
         state_names=CCR_STATE_NAMES, state_colours=CCR_STATE_COLOURS,
+        danger=np.concatenate([np.zeros((1, positions.shape[1]), bool),
+                               np.asarray(episode["danger"], bool)]),
+        caption=f"seed {cell['seeds'][0]}, the first recorded evaluation episode",
     )
 
 

@@ -35,6 +35,7 @@ TINY = [
     "--eval-episodes", "4", "--learning-starts", "100", "--ddpg-batch-size", "16",
     "--ddpg-actor-hidden", "8", "--ddpg-critic-hidden", "8", "--ddpg-update-every", "10",
     "--seeds", "2", "--seed-offset", "7", "--checkpoint-every", "200", "--no-progress",
+    "--keep-buffer",
 ]
 
 
@@ -46,7 +47,8 @@ def restore_final(folder: Path):
     abstract = jax.eval_shape(jax.vmap(program.init), keys)
     checkpoints = Checkpoints(folder / "checkpoints")
     try:
-        return spec, checkpoints.restore_latest(abstract, fingerprint(spec.to_dict()))
+        return spec, checkpoints.restore_latest(abstract.replace(buffer=None), abstract.buffer,
+                                              fingerprint(spec.to_dict()))
     finally:
         checkpoints.close()
 
@@ -120,15 +122,16 @@ def test_a_stopped_and_resumed_run_is_the_uninterrupted_run(finished_run, tmp_pa
     monkeypatch.setattr(train.Progress, "update", real_update)
     assert "--resume" in capsys.readouterr().err
     assert sorted(int(p.name) for p in (out / "checkpoints").iterdir()) == [200]
-    assert train.main(["--out", str(out), "--resume", "--no-progress"]) == 0
+    assert train.main(["--out", str(out), "--resume", "--no-progress", "--keep-buffer"]) == 0
     assert "resuming" in capsys.readouterr().err
 
     _, resumed = restore_final(out)
     _, uninterrupted = restore_final(finished_run)
     assert resumed.step == uninterrupted.step == 400
     assert int(np.min(resumed.state.updates)) > 0  # the resumed chunk trained
-    paths = jax.tree_util.tree_flatten_with_path(uninterrupted.state)[0]
-    leaves = jax.tree_util.tree_leaves(resumed.state)
+    assert resumed.buffer is not None and uninterrupted.buffer is not None  # --keep-buffer
+    paths = jax.tree_util.tree_flatten_with_path((uninterrupted.state, uninterrupted.buffer))[0]
+    leaves = jax.tree_util.tree_leaves((resumed.state, resumed.buffer))
     assert len(paths) == len(leaves)
     for (path, want), have in zip(paths, leaves, strict=True):
         np.testing.assert_array_equal(np.asarray(have), np.asarray(want),

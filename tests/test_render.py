@@ -8,9 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from matplotlib.axes import Axes
 from PIL import Image
 
 from ccrjax.envs.env import CCREnv
+from ccrjax.viz import render
 from ccrjax.viz.render import (
     CCR_STATE_COLOURS,
     CCR_STATE_NAMES,
@@ -163,3 +165,44 @@ def test_outcomes_are_read_at_the_end_and_marked(record: EpisodeRecord, tmp_path
         last = np.asarray(image.convert("RGB")).reshape(-1, 3)
     assert colour_count(first, FAILURE_COLOUR) == 0 < colour_count(last, FAILURE_COLOUR)
     assert colour_count(first, GOAL_COLOUR) < colour_count(last, GOAL_COLOUR)
+
+
+def test_pictures_show_each_robot_its_danger_and_the_caption(tmp_path):
+    """One trajectory colour per robot, a danger mark on the steps spent in danger (a plain
+    run too), and the caption in the title; the GIF the same."""
+    env = CCREnv("hidden_obstacle", num_robots=3, num_envs=1, episode_length=12)
+
+    def right(obs, key):
+        return jnp.ones((3, 2, 1)) * jnp.array([1.0, 0.0])[None, :, None]
+
+    record = render.record_episode(env, right, jax.random.PRNGKey(0), caption="seed 7, ep 1")
+    assert record.danger is not None and record.danger.shape == (13, 3)
+    assert not record.danger[0].any() and record.danger.any()  # they run into the obstacle
+    lines, rings, titles = [], [], []
+    original_plot, original_scatter, original_title = Axes.plot, Axes.scatter, Axes.set_title
+
+    def plot(self, *args, **kwargs):
+        lines.append(kwargs.get("color"))
+        return original_plot(self, *args, **kwargs)
+
+    def scatter(self, *args, **kwargs):
+        if kwargs.get("facecolors") == "none":
+            rings.append(len(args[0]))
+        return original_scatter(self, *args, **kwargs)
+
+    def set_title(self, text, *args, **kwargs):
+        titles.append(text)
+        return original_title(self, text, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Axes, "plot", plot)
+        patch.setattr(Axes, "scatter", scatter)
+        patch.setattr(Axes, "set_title", set_title)
+        render.draw_episode(record, tmp_path / "e.png", dpi=40)
+    trajectory_colours = [c for c in lines if c in render.ROBOT_COLOURS]
+    assert len(set(trajectory_colours)) == 3  # one colour per robot
+    assert sum(rings) == int(record.danger.sum())  # every dangerous step marked
+    assert "seed 7, ep 1" in titles[-1]
+    render.animate_episode(dataclasses.replace(record), tmp_path / "e.gif", dpi=40)
+    with Image.open(tmp_path / "e.gif") as gif:
+        assert gif.n_frames >= record.num_steps + 1  # a frame per step

@@ -122,6 +122,28 @@ def add_episodes(buffer: ReplayBuffer, episodes: Transition) -> ReplayBuffer:
     )
 
 
+def grow(buffer: ReplayBuffer, capacity_episodes: int) -> ReplayBuffer:
+    """``buffer`` in a larger ring of ``capacity_episodes`` episodes, holding the same
+    transitions in the same slots: what a longer run's buffer holds at the same step.
+
+    Only a buffer that never wrapped can grow (a capped one keeps its capacity); its next
+    block then goes after the episodes held (``position = episodes``), as in a buffer that
+    was that large from the start. ``sample`` draws from ``[0, size)``, so sampling is
+    unchanged too.
+    """
+    extra = capacity_episodes - buffer.capacity_episodes
+    if extra < 0:
+        raise ValueError(f"a buffer of {buffer.capacity_episodes} episodes cannot shrink to "
+                         f"{capacity_episodes}")
+
+    def pad(x: jax.Array) -> jax.Array:
+        return jnp.concatenate([x, jnp.zeros((extra,) + x.shape[1:], x.dtype)])
+
+    return buffer.replace(obs=pad(buffer.obs), action=pad(buffer.action),
+                          reward=pad(buffer.reward), done=pad(buffer.done),
+                          position=buffer.episodes % capacity_episodes)
+
+
 def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Transition:
     """``batch_size`` transitions drawn uniformly, with replacement, from those held.
 

@@ -1,10 +1,16 @@
 """Checkpoints of a training run with orbax-checkpoint: atomic, pruned, and read defensively.
 
-A checkpoint holds two items: ``state``, the whole training state of every seed
-(parameters, optimiser states, replay buffers, transform state, random keys,
-counters), and ``meta``, a JSON object (the evaluation history so far, wall time,
-the run's configuration fingerprint). It is named by its step, the number of
-environment steps per seed it holds.
+A checkpoint holds three items: ``state``, the training state of every seed but its
+replay buffer (parameters, optimiser states, transform state, random keys, counters);
+``buffer``, the replay buffers; and ``meta``, a JSON object (the evaluation history so
+far, wall time, the run's configuration fingerprint). It is named by its step, the
+number of environment steps per seed it holds.
+
+Only the latest checkpoint keeps its ``buffer``, the one thing exact resumption needs
+beyond the state and by far the largest (hundreds of MB): once a newer checkpoint is
+complete on disk, the older ones' buffers are deleted (:meth:`Checkpoints.save`,
+:meth:`Checkpoints.drop_old_buffers`). An older checkpoint still restores everything
+else; resuming from it starts from an empty buffer, which the caller reports.
 
 Orbax writes each checkpoint into a temporary folder and renames it into place
 once every file is written, so a process killed at any moment (SIGKILL
@@ -49,6 +55,7 @@ class IncompatibleCheckpoint(CheckpointError):
 class Restored:
     step: int
     state: Any
+    buffer: Any  # None: this checkpoint kept no replay buffer
     meta: dict
     skipped: tuple[tuple[int, str], ...]  # (step, why) of newer checkpoints that were unreadable
 
@@ -62,6 +69,19 @@ def _shapes(tree: Any) -> list[tuple[tuple[int, ...], str]]:
     return [(tuple(x.shape), str(np.dtype(x.dtype))) for x in jax.tree_util.tree_leaves(tree)]
 
 
+def _as_like(saved: Any, abstract: Any) -> Any:
+    """A buffer restored as saved (a dict of arrays) in the dataclass of ``abstract``, after
+    checking that its fields, dtypes and ranks are ``abstract``'s (sizes may differ)."""
+    fields = {f.name for f in dataclasses.fields(abstract)}
+    if not isinstance(saved, dict) or set(saved) != fields:
+        raise ValueError("the saved buffer has other fields")
+    for name in fields:
+        want, have = getattr(abstract, name), saved[name]
+        if np.dtype(have.dtype) != np.dtype(want.dtype) or np.ndim(have) != len(want.shape):
+            raise ValueError(f"the saved buffer's {name} is {have.dtype}{list(np.shape(have))}")
+    return type(abstract)(**{name: jax.numpy.asarray(saved[name]) for name in fields})
+
+
 class Checkpoints:
     """The checkpoints of one run folder (``<run>/checkpoints/<step>``)."""
 
@@ -72,25 +92,49 @@ class Checkpoints:
             options=ocp.CheckpointManagerOptions(
                 max_to_keep=keep, create=True, cleanup_tmp_directories=True
             ),
-            item_names=("state", "meta"),
+            item_names=("state", "buffer", "meta"),
         )
 
     def steps(self) -> list[int]:
         return sorted(self.manager.all_steps())
 
-    def save(self, step: int, state: Any, meta: dict) -> None:
-        """Starts writing checkpoint ``step`` (returns once the arrays are copied)."""
+    def save(self, step: int, state: Any, buffer: Any, meta: dict) -> None:
+        """Starts writing checkpoint ``step`` (returns once the arrays are copied). The
+        previous checkpoint is complete first; every checkpoint before it then loses its
+        buffer (the previous one keeps its buffer until this one is on disk)."""
+        self.manager.wait_until_finished()
+        self.drop_old_buffers(keep=1)
         self.manager.save(
             step,
             args=ocp.args.Composite(
-                state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)
+                state=ocp.args.StandardSave(state), buffer=ocp.args.StandardSave(buffer),
+                meta=ocp.args.JsonSave(meta),
             ),
             force=True,
         )
 
+    def has_buffer(self, step: int) -> bool:
+        return (self.directory / str(step) / "buffer").is_dir()
+
+    def drop_buffer(self, step: int) -> int:
+        """Deletes checkpoint ``step``'s replay buffer; returns the bytes freed."""
+        folder = self.directory / str(step) / "buffer"
+        if not folder.is_dir():
+            return 0
+        freed = sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
+        shutil.rmtree(folder)
+        return freed
+
+    def drop_old_buffers(self, keep: int = 1) -> None:
+        """Deletes the buffers of every complete checkpoint but the newest ``keep``."""
+        for step in self.steps()[:-keep] if keep else self.steps():
+            self.drop_buffer(step)
+
     def wait(self) -> None:
-        """Blocks until every checkpoint started is on disk."""
+        """Blocks until every checkpoint started is on disk, then keeps only the newest
+        one's buffer."""
         self.manager.wait_until_finished()
+        self.drop_old_buffers(keep=1)
 
     def close(self) -> None:
         self.manager.close()
@@ -101,8 +145,13 @@ class Checkpoints:
         self.manager.reload()
         return target
 
-    def restore_latest(self, abstract_state: Any, fingerprint: str) -> Restored:
-        """The newest readable checkpoint, restored into the structure of ``abstract_state``.
+    def restore_latest(self, abstract_state: Any, abstract_buffer: Any,
+                       fingerprint: str) -> Restored:
+        """The newest readable checkpoint, restored into the structure of ``abstract_state``,
+        and its buffer in the structure of ``abstract_buffer`` with the sizes it was saved
+        with (a run extended with a larger budget has a larger buffer than its older
+        checkpoints); the buffer is ``None`` if the checkpoint kept none, or if
+        ``abstract_buffer`` is ``None`` (not asked for).
 
         Raises :class:`IncompatibleCheckpoint` for a checkpoint of another configuration
         and :class:`CheckpointError` when there is none, or none is readable.
@@ -126,12 +175,15 @@ class Checkpoints:
                     "config.json"
                 )
             try:
-                state = self.manager.restore(
-                    step,
-                    args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract_state)),
-                )["state"]
+                items = {"state": ocp.args.StandardRestore(abstract_state)}
+                if abstract_buffer is not None and self.has_buffer(step):
+                    items["buffer"] = ocp.args.StandardRestore()  # its own shapes
+                restored = self.manager.restore(step, args=ocp.args.Composite(**items))
+                state = restored["state"]
                 if _shapes(state) != _shapes(abstract_state):
                     raise ValueError("restored arrays have other shapes")
+                buffer = (_as_like(restored["buffer"], abstract_buffer) if "buffer" in items
+                          else None)
             except Exception as error:
                 if self._layout_differs(step, abstract_state):
                     raise IncompatibleCheckpoint(
@@ -141,12 +193,14 @@ class Checkpoints:
                 skipped.append((step, _short(error)))
                 self._move_aside(step)
                 continue
-            return Restored(step=step, state=state, meta=meta, skipped=tuple(skipped))
+            return Restored(step=step, state=state, buffer=buffer, meta=meta,
+                            skipped=tuple(skipped))
         raise CheckpointError(
             "no readable checkpoint: " + "; ".join(f"{s}: {why}" for s, why in skipped)
         )
 
     def _layout_differs(self, step: int, abstract_state: Any) -> bool:
+        # Only the state item is compared: a missing buffer is not another layout.
         """Whether checkpoint ``step``'s recorded array shapes differ from ``abstract_state``'s
         (False when its metadata cannot be read: then it is corrupted, not incompatible)."""
         try:

@@ -127,7 +127,13 @@ def environment_record() -> dict[str, Any]:
 
 
 def fingerprint(run_config: dict[str, Any]) -> str:
-    """A short hash of a run's configuration (what a checkpoint must have been made with)."""
+    """A short hash of a run's configuration (what a checkpoint must have been made with).
+    The budget (``train.total_env_steps``) is left out: a run extended with a larger
+    ``--steps`` is the same run, and its checkpoints stay its own."""
+    run_config = dict(run_config)
+    if isinstance(run_config.get("train"), dict):
+        run_config["train"] = {k: v for k, v in run_config["train"].items()
+                               if k != "total_env_steps"}
     text = json.dumps(run_config, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

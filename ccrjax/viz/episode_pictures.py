@@ -32,9 +32,10 @@ from ccrjax.viz.render import (
 # Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
 PICTURE_KEY = 0x9E3779B1
 
-def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Array
-                           ) -> EpisodeRecord:
-    """One evaluation episode of ``state`` (one seed, no seed axis) in a fresh environment."""
+def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Array,
+                           caption: str = "") -> EpisodeRecord:
+    """One evaluation episode of ``state`` (one seed, no seed axis) in a fresh environment,
+    deterministic policy, with every robot's danger at every step; ``caption`` names it."""
     env = make_env(program.config, 1)
 
     def rollout(state: TrainState, key: jax.Array):
@@ -44,10 +45,12 @@ def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Ar
         _, episode = run_episode(
             env, program.transform, state.transform, greedy, program.learner.discrete, key
         )
-        return episode.position, episode.hazard, episode.info.get("ccr_state")
+        return episode.position, episode.hazard, episode.danger, episode.info.get("ccr_state")
 
-    position, hazard, ccr_state = compile_for(rollout, (state, key))(state, key)
+    position, hazard, danger, ccr_state = compile_for(rollout, (state, key))(state, key)
     positions = np.asarray(position)[..., 0]  # [T + 1, N, 2]
+    steps_danger = np.asarray(danger)[..., 0] > 0  # [T, N]
+    danger = np.concatenate([np.zeros_like(steps_danger[:1]), steps_danger])
     if ccr_state is None:
         states = np.zeros(positions.shape[:2], np.int32)
         names, colours = DEFAULT_STATE_NAMES, DEFAULT_STATE_COLOURS
@@ -68,6 +71,8 @@ def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Ar
         states=states,
         state_names=names,
         state_colours=colours,
+        danger=danger,
+        caption=caption,
     )
 
 

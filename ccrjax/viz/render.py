@@ -54,6 +54,10 @@ BLUE = "#1f6fd1"
 YELLOW = "#f2c500"
 PINK = "#ff5fa2"
 
+# One colour per robot (trajectories), repeated beyond ten robots.
+ROBOT_COLOURS: tuple[str, ...] = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b",
+                                  "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#393b79")
+DANGER_COLOUR = "#8b0015"  # darker than the failure cross (FAILURE_COLOUR)
 DEFAULT_STATE_NAMES: tuple[str, ...] = ("robot",)
 DEFAULT_STATE_COLOURS: tuple[str, ...] = (BLUE,)
 # The CCR robot states of the paper, in the order of their state index.
@@ -106,6 +110,9 @@ class EpisodeRecord:
         into ``state_names`` and ``state_colours``.
       state_names: the legend's name of every state.
       state_colours: a matplotlib colour for every state.
+      danger: ``bool[T + 1, N]`` or ``None``: each robot in a dangerous state at each
+        step (the reset's row first), marked on its path whatever the transform.
+      caption: what the episode is (``"seed 0, evaluation episode 1 of 1"``), in the title.
 
     Arrays are copied and made read-only; a malformed record raises ``ValueError``.
     """
@@ -121,6 +128,8 @@ class EpisodeRecord:
     states: np.ndarray
     state_names: tuple[str, ...] = DEFAULT_STATE_NAMES
     state_colours: tuple[str, ...] = DEFAULT_STATE_COLOURS
+    danger: np.ndarray | None = None
+    caption: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.scenario, str) or not self.scenario:
@@ -178,6 +187,18 @@ class EpisodeRecord:
             )
         states = states.astype(np.int32)
         states.setflags(write=False)
+        if self.danger is not None:
+            danger = np.asarray(self.danger)
+            if danger.shape != positions.shape[:2]:
+                raise ValueError(
+                    f"EpisodeRecord.danger must be bool[T + 1, N] = {list(positions.shape[:2])} "
+                    f"like positions, got shape {list(danger.shape)}"
+                )
+            danger = danger.astype(bool)
+            danger.setflags(write=False)
+            object.__setattr__(self, "danger", danger)
+        if not isinstance(self.caption, str):
+            raise ValueError(f"EpisodeRecord.caption must be a string, got {self.caption!r}")
 
         object.__setattr__(self, "positions", positions)
         object.__setattr__(self, "goal", (float(goal[0]), float(goal[1])))
@@ -219,6 +240,7 @@ def record_episode(
     state_names: Sequence[str] = DEFAULT_STATE_NAMES,
     state_colours: Sequence[str] = DEFAULT_STATE_COLOURS,
     optimize: bool = False,
+    caption: str = "",
 ) -> EpisodeRecord:
     """Resets ``env``, runs one episode, and records environment ``env_index``.
 
@@ -240,10 +262,12 @@ def record_episode(
       optimize: compile the rollout with XLA's full backend optimisation. By
         default it is compiled at optimisation level 0, which on CPU halves the
         compile time (most of a recording's cost); positions may then differ from
-        an optimised rollout's by float32 rounding (we saw about 1e-7 relative).
+        an optimised rollout's by float32 rounding (about 1e-7 relative).
+      caption: what the episode is, for the pictures' title.
 
     Returns:
-      The :class:`EpisodeRecord` of environment ``env_index``.
+      The :class:`EpisodeRecord` of environment ``env_index``, with every robot's danger
+      at every step.
     """
     num_envs = int(env.num_envs)
     if isinstance(env_index, bool) or not isinstance(env_index, int | np.integer) or not (
@@ -260,18 +284,20 @@ def record_episode(
 
         def body(state: Any, step_key: jax.Array) -> tuple[Any, Any]:
             state = env.transition(state, policy(state.obs, step_key))
-            return state, (state if keep_trajectory else state.pipeline_state.position)
+            kept = state if keep_trajectory else state.pipeline_state.position
+            return state, (kept, state.metrics["danger"])
 
-        _, stacked = jax.lax.scan(body, first, jax.random.split(policy_key, steps))
+        _, (stacked, danger) = jax.lax.scan(body, first, jax.random.split(policy_key, steps))
         if keep_trajectory:
             trajectory = jax.tree.map(
                 lambda a, b: jnp.concatenate([a[None], b]), first, stacked
             )
         else:
             trajectory = jnp.concatenate([first.pipeline_state.position[None], stacked])
-        return first.pipeline_state.hazard, trajectory
+        danger = jnp.concatenate([jnp.zeros_like(danger[:1]), danger])  # the reset: none
+        return first.pipeline_state.hazard, trajectory, danger
 
-    hazard, trajectory = compile_for(rollout, (key,), optimize)(key)
+    hazard, trajectory, danger = compile_for(rollout, (key,), optimize)(key)
     positions = trajectory.pipeline_state.position if keep_trajectory else trajectory
     positions = np.asarray(positions)[..., env_index]  # [T + 1, N, 2]
 
@@ -300,6 +326,8 @@ def record_episode(
         states=state_index,
         state_names=tuple(state_names),
         state_colours=tuple(state_colours),
+        danger=np.asarray(danger)[..., env_index] > 0,
+        caption=caption,
     )
 
 
@@ -443,39 +471,63 @@ def _state_handles(record: EpisodeRecord, used_only: bool = False) -> list[Any]:
 
 def _title(record: EpisodeRecord) -> str:
     name = SCENARIO_TITLES.get(record.scenario, record.scenario)
-    return f"{name}: {record.num_robots} robots, {record.num_steps} steps"
+    text = f"{name}: {record.num_robots} robots, {record.num_steps} steps"
+    return f"{text}\n{record.caption}" if record.caption else text
+
+
+def robot_colour(robot: int) -> str:
+    return ROBOT_COLOURS[robot % len(ROBOT_COLOURS)]
+
+
+def _robot_handles(record: EpisodeRecord) -> list[Any]:
+    """A line per robot (its trajectory's colour), and the danger mark if it is drawn."""
+    handles = [Line2D([], [], color=robot_colour(r), linewidth=2, label=f"robot {r + 1}")
+               for r in range(min(record.num_robots, len(ROBOT_COLOURS)))]
+    if record.danger is not None:
+        handles.append(Line2D([], [], marker="o", markerfacecolor="none", linestyle="none",
+                              markeredgecolor=DANGER_COLOUR, markeredgewidth=1.5, markersize=8,
+                              label="in danger"))
+    return handles
 
 
 def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
                  dpi: int = 150) -> None:
     """Draws the whole episode to a PNG: hazard, target, and every robot's trajectory.
 
-    Each robot's path is a grey line with a point per step in the colour of the
-    robot's state at that step; a hollow square marks its start and a disc of
-    its real radius, in its final state's colour, its end, ringed in green if the
-    robot ends in the target area (a success) and crossed in red if not.
+    Each robot's path is a line in its own colour with a point per step (in the colour
+    of the robot's state at that step when there are several states, as under CCR), a
+    red ring on every step it spent in danger (when ``record.danger`` is given, whatever
+    the transform); a square in its colour marks its start and a disc of its real radius
+    its end, ringed in green if the robot ends in the target area (a success) and
+    crossed in red if not.
     """
     fig, ax, handles = _new_figure(record, 9.0, 2.0, dpi)
     colours = np.array([mcolors.to_rgba(c) for c in record.state_colours])
     positions = record.positions
+    several_states = len(record.state_names) > 1
     for robot in range(record.num_robots):
         path = positions[:, robot]
-        ax.plot(path[:, 0], path[:, 1], color=TRAIL_COLOUR, linewidth=1.0, alpha=0.8, zorder=3)
-        ax.scatter(path[:, 0], path[:, 1], s=11, c=colours[record.states[:, robot]],
-                   edgecolors="none", zorder=4)
+        colour = robot_colour(robot)
+        ax.plot(path[:, 0], path[:, 1], color=colour, linewidth=1.3, alpha=0.9, zorder=3)
+        dots = colours[record.states[:, robot]] if several_states else colour
+        ax.scatter(path[:, 0], path[:, 1], s=11, c=dots, edgecolors="none", zorder=4)
+        if record.danger is not None and record.danger[:, robot].any():
+            hit = path[record.danger[:, robot]]
+            ax.scatter(hit[:, 0], hit[:, 1], s=42, facecolors="none",
+                       edgecolors=DANGER_COLOUR, linewidths=1.2, zorder=4.5)
         ax.plot(*path[0], marker="s", markersize=7, markerfacecolor="white",
-                markeredgecolor="black", markeredgewidth=1.2, linestyle="none", zorder=5)
+                markeredgecolor=colour, markeredgewidth=1.6, linestyle="none", zorder=5)
         ax.add_patch(Circle(tuple(path[-1]), record.robot_radius,
-                            facecolor=colours[record.states[-1, robot]],
-                            edgecolor="black", linewidth=1.2, zorder=6))
-    handles = _state_handles(record) + [
+                            facecolor=colours[record.states[-1, robot]] if several_states
+                            else colour, edgecolor="black", linewidth=1.2, zorder=6))
+    handles = _robot_handles(record) + (_state_handles(record) if several_states else []) + [
         Line2D([], [], marker="s", markerfacecolor="white", markeredgecolor="black",
                linestyle="none", label="start"),
         Line2D([], [], marker="o", markerfacecolor="#dddddd", markeredgecolor="black",
                markersize=9, linestyle="none", label="end (robot size)"),
     ] + _draw_outcomes(ax, record, 12) + handles
     _add_legend(fig, handles, 2.0, 8)
-    ax.set_title(_title(record))
+    ax.set_title(_title(record), fontsize=10)
     fig.savefig(os.fspath(path_png), dpi=dpi)
 
 
@@ -530,8 +582,9 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
                     fps: int = 10, dpi: int = 100, trail: int | None = None) -> None:
     """Writes the episode as an animated GIF with one frame per recorded step.
 
-    Robots are discs of their real radius, coloured by their current state,
-    each followed by a grey trail of its last ``trail`` steps (all by default).
+    Robots are discs of their real radius, coloured by their current state (by robot
+    when there is one state), outlined in red while in danger, each followed by a trail
+    in its own colour of its last ``trail`` steps (all by default).
     Frames share one 64-colour palette, which keeps 50 steps well below 2 MB.
     """
     if isinstance(fps, bool) or not isinstance(fps, int) or not 1 <= fps <= 100:
@@ -540,12 +593,14 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
         raise ValueError(f"trail must be None or an integer >= 0, got {trail!r}")
     fig, ax, handles = _new_figure(record, 6.4, 1.45, dpi)
     canvas = fig.canvas
-    _add_legend(fig, _state_handles(record) + handles, 1.45, 7)
-    ax.set_title(_title(record), fontsize=10)
+    several_states = len(record.state_names) > 1
+    _add_legend(fig, _robot_handles(record) + (_state_handles(record) if several_states else [])
+                + handles, 1.45, 7)
+    ax.set_title(_title(record), fontsize=9)
     colours = [mcolors.to_rgba(c) for c in record.state_colours]
     positions = record.positions
-    trails = [ax.plot([], [], color=TRAIL_COLOUR, linewidth=1.0, zorder=3)[0]
-              for _ in range(record.num_robots)]
+    trails = [ax.plot([], [], color=robot_colour(robot), linewidth=1.0, zorder=3)[0]
+              for robot in range(record.num_robots)]
     discs = [ax.add_patch(Circle(tuple(positions[0, robot]), record.robot_radius,
                                  edgecolor="black", linewidth=0.8, zorder=5))
              for robot in range(record.num_robots)]
@@ -568,7 +623,11 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
             path = positions[start:step + 1, robot]
             trails[robot].set_data(path[:, 0], path[:, 1])
             discs[robot].center = tuple(positions[step, robot])
-            discs[robot].set_facecolor(colours[record.states[step, robot]])
+            discs[robot].set_facecolor(colours[record.states[step, robot]] if several_states
+                                       else robot_colour(robot))
+            in_danger = record.danger is not None and record.danger[step, robot]
+            discs[robot].set_edgecolor(DANGER_COLOUR if in_danger else "black")
+            discs[robot].set_linewidth(1.8 if in_danger else 0.8)
         clock.set_text(f"t = {step:3d}")
         canvas.restore_region(background)
         for artist in moving:
@@ -578,8 +637,8 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
                 ax.draw_artist(artist)
         rgb = np.asarray(canvas.buffer_rgba())[..., :3].copy()
         if palette is None:
-            palette = _palette(rgb, [*record.state_colours, TRAIL_COLOUR, GOAL_COLOUR,
-                                     FAILURE_COLOUR])
+            palette = _palette(rgb, [*record.state_colours, *ROBOT_COLOURS, DANGER_COLOUR,
+                                     TRAIL_COLOUR, GOAL_COLOUR, FAILURE_COLOUR])
         frames.append(_indexed(rgb, palette))
     duration = round(1000 / fps)
     # Hold the last frame (with the outcomes marked) a second longer.
