@@ -16,12 +16,13 @@ runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one
 the next one compiles.
 
 Cost. Measured per seed on this project's 2-core CPU (``benchmarks/train_throughput.py``,
-hidden obstacle, median of 3, the machine otherwise idle): IDDPG about 6,700, MADDPG
-about 3,900 and MAAC about 250 environment steps per second. The grid is 30 runs of
-3,000,000 steps per scenario and learner, so on that CPU it would take about 11 h
-(IDDPG) + 19 h (MADDPG) + 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at
-about 460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000).
-Cells are resumable across invocations, so the grid can be spread over several.
+hidden obstacle, median of 3, 2026-11-22; MADDPG's and MAAC's while the test suite shared
+the machine, so their times below are upper bounds): IDDPG about 6,700, MADDPG about 3,900
+and MAAC about 250 environment steps per second. The grid is 30 runs of 3,000,000 steps per
+scenario and learner, so on that CPU it would take about 11 h (IDDPG) + up to 19 h
+(MADDPG) + up to 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about
+460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000). Cells
+are resumable across invocations, so the grid can be spread over several.
 
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
