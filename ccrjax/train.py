@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -404,10 +404,59 @@ def physical_memory() -> int | None:
         return None
 
 
-def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: bool,
-              keep_buffer: bool = False) -> int:
-    """Trains (or resumes) the run in ``folder``; returns the exit status. The finished
-    run's last checkpoint keeps its replay buffer only with ``keep_buffer``."""
+@dataclasses.dataclass
+class Session:
+    """A run ready to train (:func:`prepare`): its folder and checkpoints, the program and
+    its compiled chunk, the state of every seed, and the evaluation history so far."""
+
+    folder: RunFolder
+    spec: RunSpec
+    program: Any
+    checkpoints: Checkpoints
+    chunk: Any  # jitted (state, train: bool) -> (state, evaluation point, training metrics)
+    state: Any
+    history: list[dict[str, Any]]
+    fingerprint: str
+    wall_before: float
+    started: float = dataclasses.field(default_factory=time.perf_counter)
+
+    @property
+    def seeds(self) -> list[int]:
+        return self.spec.seed_list
+
+    @property
+    def chunk_steps(self) -> int:
+        config = self.spec.train
+        return config.iterations_per_eval * config.steps_per_iteration
+
+    @property
+    def total_steps(self) -> int:
+        return self.program.num_evaluations * self.chunk_steps
+
+    @property
+    def steps(self) -> int:
+        return int(self.history[-1]["env_steps"])
+
+    @property
+    def finished(self) -> bool:
+        return self.steps >= self.total_steps
+
+    def wall(self) -> float:
+        return self.wall_before + time.perf_counter() - self.started
+
+    def save(self) -> None:
+        """Starts writing a checkpoint of the current state and history."""
+        meta = {"fingerprint": self.fingerprint, "history": self.history,
+                "wall_time_s": self.wall()}
+        self.checkpoints.save(self.steps, self.state.replace(buffer=None), self.state.buffer,
+                              meta)
+
+
+def prepare(folder: RunFolder, spec: RunSpec, record: dict | None,
+            progress_bar: bool) -> Session:
+    """Everything before training: the memory check, the folder's configuration record,
+    the restored checkpoint (resuming), the compiled chunk, and a new run's first
+    evaluation (the untrained policy)."""
     config = spec.train
     program = make_train(config)
     seeds = spec.seed_list
@@ -435,147 +484,179 @@ def train_run(folder: Any, spec: RunSpec, record: dict | None, progress_bar: boo
         folder.write_config(record)
     for note in config.schedule()["notes"]:  # nothing is rounded silently
         print(f"note: {note}", file=sys.stderr, flush=True)
-    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
-    total_chunks = program.num_evaluations
-    chunk_steps = config.iterations_per_eval * config.steps_per_iteration
-
-    history: list[dict[str, Any]] = []
-    wall_before = 0.0
-    state = None
     if record.get("fingerprint") != run_fingerprint:
         raise UsageError(f"{folder.config_path} does not match the run it describes")
+    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
+    chunk_steps = config.iterations_per_eval * config.steps_per_iteration
+    total_steps = program.num_evaluations * chunk_steps
+    state, history, wall_before = None, [], 0.0
     if checkpoints.steps():
-        try:
-            restored = checkpoints.restore_latest(abstract_state.replace(buffer=None),
-                                                  abstract_state.buffer, run_fingerprint)
-        except CheckpointError as error:  # IncompatibleCheckpoint included
-            raise UsageError(f"--resume: {error}") from None
-        for step, why in restored.skipped:
-            print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
-                  f"checkpoint {restored.step}", file=sys.stderr, flush=True)
-        buffer = restored.buffer
-        capacity = abstract_state.buffer.reward.shape[1]
-        if buffer is not None and buffer.reward.shape[1] < capacity:
-            # Extended: the buffer was sized to the shorter run's transitions and never
-            # wrapped; in the longer run's larger ring it holds the same, as it would have.
-            buffer = jax.jit(jax.vmap(lambda b: grow(b, capacity)))(buffer)
-            print(f"extending the run to {config.total_env_steps_run:,} steps per seed: "
-                  "its replay buffer grows as it would have in a run started with this "
-                  "budget", file=sys.stderr, flush=True)
-        if buffer is not None and jax.tree_util.tree_map(
-                lambda x: x.shape, buffer) != jax.tree_util.tree_map(
-                lambda x: x.shape, abstract_state.buffer):
-            raise UsageError(f"--resume: checkpoint {restored.step:,} holds a replay buffer "
-                             "of another shape than this run's")
-        if buffer is None:  # an older checkpoint, or a finished run's last one
-            buffer = jax.jit(jax.vmap(program.init))(keys).buffer
-            if restored.step < total_chunks * chunk_steps:
-                print(f"checkpoint {restored.step:,} kept no replay buffer (only the latest "
-                      "checkpoint of a run in progress does): training goes on from an empty "
-                      "buffer, so the result will differ from an uninterrupted run's",
-                      file=sys.stderr, flush=True)
-        state = restored.state.replace(buffer=buffer)
-        history = restored.meta["history"]
-        wall_before = float(restored.meta["wall_time_s"])
-        folder.rewrite_metrics(history)
-        print(f"resuming {folder.path} from checkpoint {restored.step:,} "
-              f"(of {total_chunks * chunk_steps:,} steps per seed)", file=sys.stderr, flush=True)
+        state, history, wall_before = restore(folder, checkpoints, program, keys,
+                                              abstract_state, run_fingerprint, total_steps)
     elif resuming:
         raise UsageError(
             f"--resume: {folder.path} has no checkpoint (the run stopped before its first one); "
             "start it again with another --out"
         )
-
-    start_time = time.perf_counter()
-
-    def wall() -> float:
-        return wall_before + time.perf_counter() - start_time
-
+    started = time.perf_counter()  # the run's wall time counts its compilation
     chunk = compile_phase(
         f"the training program for {len(seeds)} seed(s) ({size / 2**20:,.0f} MiB of "
         "training state)",
         jax.jit(jax.vmap(program.chunk, in_axes=(0, None))), abstract_state, True,
         ticker=progress_bar,
     )
+    session = Session(folder=folder, spec=spec, program=program, checkpoints=checkpoints,
+                      chunk=chunk, state=state, history=history, fingerprint=run_fingerprint,
+                      wall_before=wall_before, started=started)
     if state is None:
         state = jax.jit(jax.vmap(program.init))(keys)
-        state, point, _ = chunk(state, False)  # the untrained policy's evaluation
-        history = point_rows(jax.device_get(point), seeds, wall())
-        folder.rewrite_metrics(history)
+        session.state, point, _ = chunk(state, False)  # the untrained policy's evaluation
+        session.history = point_rows(jax.device_get(point), seeds, session.wall())
+        folder.rewrite_metrics(session.history)
         folder.open_tensorboard(seeds, purge_step=None)
-        for row in history:
+        for row in session.history:
             folder.log_scalars(row["seed"], row["env_steps"], _eval_scalars(row))
     else:
         # Events written after the checkpoint by the run that stopped are hidden.
-        folder.open_tensorboard(seeds, purge_step=int(history[-1]["env_steps"]) + 1)
-    done_chunks = int(history[-1]["env_steps"]) // chunk_steps
+        folder.open_tensorboard(seeds, purge_step=session.steps + 1)
+    return session
 
-    def finished_at(step: int) -> bool:
-        return step >= total_chunks * chunk_steps
 
-    def save(current_state) -> None:
-        meta = {"fingerprint": run_fingerprint, "history": history, "wall_time_s": wall()}
-        checkpoints.save(int(history[-1]["env_steps"]), current_state.replace(buffer=None),
-                         current_state.buffer, meta)
+def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax.Array,
+            abstract_state: Any, run_fingerprint: str, total_steps: int
+            ) -> tuple[Any, list[dict[str, Any]], float]:
+    """The latest readable checkpoint's state (its replay buffer grown for an extended run,
+    or an empty one where it kept none, said), history and wall time."""
+    try:
+        restored = checkpoints.restore_latest(abstract_state.replace(buffer=None),
+                                              abstract_state.buffer, run_fingerprint)
+    except CheckpointError as error:  # IncompatibleCheckpoint included
+        raise UsageError(f"--resume: {error}") from None
+    for step, why in restored.skipped:
+        print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
+              f"checkpoint {restored.step}", file=sys.stderr, flush=True)
+    buffer = restored.buffer
+    capacity = abstract_state.buffer.reward.shape[1]
+    if buffer is not None and buffer.reward.shape[1] < capacity:
+        # Extended: the buffer was sized to the shorter run's transitions and never
+        # wrapped; in the longer run's larger ring it holds the same, as it would have.
+        buffer = jax.jit(jax.vmap(lambda b: grow(b, capacity)))(buffer)
+        print(f"extending the run to {total_steps:,} steps per seed: its replay buffer grows "
+              "as it would have in a run started with this budget", file=sys.stderr, flush=True)
+    if buffer is not None and jax.tree_util.tree_map(
+            lambda x: x.shape, buffer) != jax.tree_util.tree_map(
+            lambda x: x.shape, abstract_state.buffer):
+        raise UsageError(f"--resume: checkpoint {restored.step:,} holds a replay buffer "
+                         "of another shape than this run's")
+    if buffer is None:  # an older checkpoint, or a finished run's last one
+        buffer = jax.jit(jax.vmap(program.init))(keys).buffer
+        if restored.step < total_steps:
+            print(f"checkpoint {restored.step:,} kept no replay buffer (only the latest "
+                  "checkpoint of a run in progress does): training goes on from an empty "
+                  "buffer, so the result will differ from an uninterrupted run's",
+                  file=sys.stderr, flush=True)
+    history = restored.meta["history"]
+    folder.rewrite_metrics(history)
+    print(f"resuming {folder.path} from checkpoint {restored.step:,} "
+          f"(of {total_steps:,} steps per seed)", file=sys.stderr, flush=True)
+    return (restored.state.replace(buffer=buffer), history,
+            float(restored.meta["wall_time_s"]))
 
-    progress = Progress(total_chunks * chunk_steps, len(seeds), done_chunks * chunk_steps,
-                        progress_bar)
-    status = 0
+
+@dataclasses.dataclass(frozen=True)
+class NonFinite:
+    """Where a run's training turned non-finite."""
+
+    iteration: int
+    seed: int
+
+
+def run_chunks(session: Session, on_point: Callable[[list[dict[str, Any]]], None],
+               should_stop: Callable[[], bool]) -> NonFinite | None:
+    """Trains chunk after chunk (``--eval-every`` steps, then an evaluation) until the
+    budget is spent or ``should_stop()``; each evaluation goes to ``metrics.csv`` and
+    TensorBoard and then to ``on_point(rows)``; checkpoints are started every
+    ``--checkpoint-every`` steps, at the end, and when stopping. Returns where training
+    turned non-finite (the bad chunk is not recorded), or ``None``."""
+    folder, seeds = session.folder, session.seeds
+    total_chunks = session.program.num_evaluations
+    for index in range(session.steps // session.chunk_steps, total_chunks):
+        if should_stop():
+            break
+        state, point, training = session.chunk(session.state, True)
+        point, training, bad = jax.device_get((point, training, state.nonfinite_iteration))
+        bad = np.asarray(bad)
+        if np.any(bad >= 0):
+            seed_index = int(np.flatnonzero(bad >= 0)[0])
+            return NonFinite(iteration=int(bad[seed_index]), seed=seeds[seed_index])
+        session.state = state
+        rows = point_rows(point, seeds, session.wall())
+        session.history.extend(rows)
+        folder.append_metrics(rows)
+        for k, row in enumerate(rows):
+            scalars = _eval_scalars(row)
+            scalars.update({f"train/{name}": float(np.asarray(value)[k])
+                            for name, value in training.items()})
+            folder.log_scalars(row["seed"], row["env_steps"], scalars)
+        on_point(rows)
+        last = index + 1 == total_chunks
+        if last or (index + 1) % session.spec.chunks_per_checkpoint == 0 or should_stop():
+            session.save()
+    return None
+
+
+def close(session: Session, keep_buffer: bool) -> list[int]:
+    """Waits for the checkpoints, drops a finished run's replay buffer unless
+    ``keep_buffer``, closes the event files; returns the checkpoints kept."""
+    checkpoints = session.checkpoints
+    checkpoints.wait()
+    saved = checkpoints.steps()
+    if saved and saved[-1] >= session.total_steps and not keep_buffer:
+        # A finished run needs no replay buffer, unless it is to be extended exactly.
+        freed = checkpoints.drop_buffer(saved[-1])
+        if freed:
+            print(f"the finished run's replay buffer ({freed / 2**20:,.0f} MiB) is not "
+                  "kept (--keep-buffer keeps it, to extend the run exactly with --resume "
+                  "--steps)", file=sys.stderr, flush=True)
+    checkpoints.close()
+    session.folder.close_tensorboard()
+    return saved
+
+
+def train_run(folder: RunFolder, spec: RunSpec, record: dict | None, progress_bar: bool,
+              keep_buffer: bool = False) -> int:
+    """Trains (or resumes) the run in ``folder`` (:func:`prepare`, :func:`run_chunks`,
+    :func:`close`, then the pictures and summary); returns the exit status. The finished
+    run's last checkpoint keeps its replay buffer only with ``keep_buffer``."""
+    session = prepare(folder, spec, record, progress_bar)
+    progress = Progress(session.total_steps, len(session.seeds), session.steps, progress_bar)
+
+    def show(rows: list[dict[str, Any]]) -> None:
+        progress.update(rows[0]["env_steps"],
+                        float(np.mean([r["success_rate"] for r in rows])),
+                        float(np.mean([r["danger_frequency"] for r in rows])))
+
     with StopRequest() as stop:
-        for index in range(done_chunks, total_chunks):
-            if stop.signal_name is not None:
-                break
-            state, point, training = chunk(state, True)
-            point, training, bad = jax.device_get((point, training, state.nonfinite_iteration))
-            bad = np.asarray(bad)
-            if np.any(bad >= 0):
-                progress.close()
-                seed_index = int(np.flatnonzero(bad >= 0)[0])
-                kept = checkpoints.steps()
-                kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
-                             if kept else "it had written no checkpoint yet")
-                print(f"{PROG}: error: training became non-finite at iteration "
-                      f"{int(bad[seed_index])} (seed {seeds[seed_index]}); the run stopped and "
-                      f"{kept_note}", file=sys.stderr, flush=True)
-                status = NONFINITE
-                break
-            rows = point_rows(point, seeds, wall())
-            history.extend(rows)
-            folder.append_metrics(rows)
-            for k, row in enumerate(rows):
-                scalars = _eval_scalars(row)
-                scalars.update({f"train/{name}": float(np.asarray(value)[k])
-                                for name, value in training.items()})
-                folder.log_scalars(row["seed"], row["env_steps"], scalars)
-            progress.update(rows[0]["env_steps"],
-                            float(np.mean([r["success_rate"] for r in rows])),
-                            float(np.mean([r["danger_frequency"] for r in rows])))
-            last = index + 1 == total_chunks
-            if last or (index + 1) % spec.chunks_per_checkpoint == 0 or stop.signal_name:
-                save(state)
+        bad = run_chunks(session, show, lambda: stop.signal_name is not None)
         progress.close()
-        checkpoints.wait()
-        saved = checkpoints.steps()
-        if saved and finished_at(saved[-1]) and not keep_buffer:
-            # A finished run needs no replay buffer, unless it is to be extended exactly.
-            freed = checkpoints.drop_buffer(saved[-1])
-            if freed:
-                print(f"the finished run's replay buffer ({freed / 2**20:,.0f} MiB) is not "
-                      "kept (--keep-buffer keeps it, to extend the run exactly with --resume "
-                      "--steps)", file=sys.stderr, flush=True)
-        checkpoints.close()
-        folder.close_tensorboard()
-    if status != 0:
-        return status
-    finished = int(history[-1]["env_steps"]) >= total_chunks * chunk_steps
-    if not finished:
-        steps = int(history[-1]["env_steps"])
+        if bad is not None:
+            kept = session.checkpoints.steps()
+            kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
+                         if kept else "it had written no checkpoint yet")
+            print(f"{PROG}: error: training became non-finite at iteration {bad.iteration} "
+                  f"(seed {bad.seed}); the run stopped and {kept_note}",
+                  file=sys.stderr, flush=True)
+        saved = close(session, keep_buffer)
+    if bad is not None:
+        return NONFINITE
+    if not session.finished:
         note = (f"checkpoint {saved[-1]:,} is saved" if saved else "no checkpoint was written")
-        print(f"stopped by {stop.signal_name} at {steps:,} steps per seed; {note}. "
+        print(f"stopped by {stop.signal_name} at {session.steps:,} steps per seed; {note}. "
               f"Continue with:\n  {PROG} --out {folder.path} --resume",
               file=sys.stderr, flush=True)
         return INTERRUPTED
-    finish(folder, program, state, seeds, history, wall())
+    finish(folder, session.program, session.state, session.seeds, session.history,
+           session.wall())
     return 0
 
 
