@@ -36,6 +36,7 @@ from ccrjax.run.search import (
     search_grid,
     search_rows,
 )
+from ccrjax.run.stats import format_mean_ci
 from ccrjax.training import ALGOS, LEARNING_STARTS, TrainConfig
 from ccrjax.training.grid import train_grid
 from ccrjax.viz.plots import draw_search_tradeoff
@@ -104,33 +105,24 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
-def _cell(stats: dict[str, Any], percent: bool) -> str:
-    scale, unit = (100.0, "%") if percent else (1.0, "")
-    text = f"{stats['mean'] * scale:.2f}{unit}"
-    if stats.get("half_width") is not None:
-        text += f" ± {stats['half_width'] * scale:.2f}"
-    return text
-
-
 def sweep_table(result: dict[str, Any]) -> str:
     name = result["parameter"]
     lines = [
         f"# Search of {name}: {result['algo']} + {result['variant']} on {result['scenario']}",
         "",
         f"{result['env_steps']:,} environment steps per run, {len(result['rows'][0]['seeds'])} "
-        f"seeds per value, {result['eval_episodes']} evaluation episodes; mean ± half-width "
-        "of the 95% CI (Student t) over seeds; 0 is the plain learner. Command: `"
+        f"seeds per value, {result['eval_episodes']} evaluation episodes; mean [95% CI] over "
+        "seeds (Student t, clipped to the metric's range); 0 is the plain learner. Command: `"
         + result["command"] + "`.",
         "",
         f"| {name} | danger frequency | success rate | return | distance to hazard |",
         "|---|---|---|---|---|",
     ]
     for row in result["rows"]:
-        lines.append(
-            f"| {row['value']:g} | {_cell(row['danger_frequency'], True)} | "
-            f"{_cell(row['success_rate'], True)} | {_cell(row['return'], False)} | "
-            f"{_cell(row['hazard_distance'], False)} |"
-        )
+        cells = [format_mean_ci(row[metric], percent) for metric, percent in (
+            ("danger_frequency", True), ("success_rate", True), ("return", False),
+            ("hazard_distance", False))]
+        lines.append(f"| {row['value']:g} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

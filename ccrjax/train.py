@@ -418,7 +418,7 @@ class Session:
     history: list[dict[str, Any]]
     fingerprint: str
     wall_before: float
-    started: float = dataclasses.field(default_factory=time.perf_counter)
+    started: float  # time.perf_counter() when this invocation began compiling
 
     @property
     def seeds(self) -> list[int]:

@@ -48,7 +48,7 @@ from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
 from ccrjax.run.search import search_grid, search_rows, summarise
 from ccrjax.run.selection import select
-from ccrjax.run.stats import plateau
+from ccrjax.run.stats import format_mean_ci, plateau
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import draw_search_tradeoff
@@ -160,11 +160,7 @@ def selection(settings: Settings, cells: dict) -> dict[str, Any]:
 
 
 def _cell_text(stats: dict, percent: bool) -> str:
-    scale, unit = (100.0, "%") if percent else (1.0, "")
-    text = f"{stats['mean'] * scale:.1f}{unit}"
-    if stats.get("ci_low") is not None:
-        text += f" [{stats['ci_low'] * scale:.1f}, {stats['ci_high'] * scale:.1f}]"
-    return text
+    return format_mean_ci(stats, percent, digits=1)
 
 
 def rows_table(rows: list[dict], parameter: str, chosen: float | None = None) -> list[str]:

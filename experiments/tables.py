@@ -84,6 +84,7 @@ from ccrjax.run.folder import (
 )
 from ccrjax.run.paper import PAPER, PAPER_HEADLINES, SCENARIOS
 from ccrjax.run.stats import (
+    format_mean_ci,
     iqm,
     mean_ci,
     mean_relative_change,
@@ -444,11 +445,8 @@ def _pct(x: float | None) -> str:
 
 
 def _cell_text(record_metric: dict, percent: bool) -> str:
-    scale = 100.0 if percent else 1.0
-    unit = "%" if percent else ""
-    text = f"{record_metric['mean'] * scale:.2f}{unit}"
-    if record_metric.get("ci_low") is not None:
-        text += f" [{record_metric['ci_low'] * scale:.2f}, {record_metric['ci_high'] * scale:.2f}]"
+    scale, unit = (100.0, "%") if percent else (1.0, "")
+    text = format_mean_ci(record_metric, percent)
     marks = record_metric.get("welch", {})
     text += "".join(symbol for base, symbol in (("plain", "*"), ("pessimistic", "†"))
                     if marks.get(base, {}).get("significant"))

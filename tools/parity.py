@@ -12,7 +12,6 @@ bit-identical parameters, optimiser states, buffers, keys and metrics.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import hashlib
 import json
 import sys
@@ -21,12 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-try:  # the layout before and after the restructuring
-    from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
-except ImportError:  # pragma: no cover
-    from ccrjax.training.program.program import ALGOS, VARIANTS, TrainConfig, make_train
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
+from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
 def digest(tree) -> str:
@@ -50,7 +46,6 @@ def fingerprints() -> dict[str, dict[str, str]]:
                                 update_every=20),
                 maac=MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8,
                                 attention_heads=2, update_every=20, gradient_steps=1))
-            config = dataclasses.replace(config)
             program = make_train(config)
             keys = jnp.stack([jax.random.PRNGKey(s) for s in (0, 1)])
             state, history = jax.jit(jax.vmap(program.train))(keys)
