@@ -98,7 +98,12 @@ def write_atomic(path: Path, text: str) -> None:
 
 
 def git_commit() -> str | None:
-    """The commit of the ccrjax source tree (with ``+dirty`` if it has changes), if any."""
+    """The commit of the ccrjax source tree (with ``+dirty`` if it has changes), if any.
+
+    ``CCRJAX_COMMIT`` in the environment names it instead, for a copy of the tree whose git
+    history is not the one it came from (a remote machine that receives the working tree)."""
+    if named := os.environ.get("CCRJAX_COMMIT"):
+        return named
     root = Path(ccrjax.__file__).resolve().parent.parent
     try:
         commit = subprocess.run(
