@@ -91,6 +91,15 @@ def cell_path(out: Path, scenario: str, algo: str) -> Path:
     return out / "cells" / f"{scenario}-{algo}.json"
 
 
+def cell_settings(record: dict[str, Any], algo: str) -> dict[str, Any]:
+    """What one scenario-and-learner cell depends on, from a settings record: the lists of
+    scenarios and learners an invocation named do not change a cell, so a cell made by a
+    narrower or a wider invocation with the same settings is kept, not trained again."""
+    kept = {k: v for k, v in record.items() if k not in ("scenarios", "algos", "steps")}
+    kept["budget"] = record["steps"] if record["steps"] is not None else protocol.BUDGETS[algo]
+    return kept
+
+
 def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
     config = settings.config(scenario, algo)
     values, seeds = settings.grid_values, list(settings.seeds)
@@ -123,7 +132,8 @@ def plan(settings: Settings, out: Path) -> tuple[dict, list[tuple[str, str]], Pr
     cells, todo = {}, []
     for scenario, algo in pairs:
         cell = read_json(cell_path(out, scenario, algo))
-        if cell and cell.get("settings") == settings_record(settings):
+        wanted = cell_settings(settings_record(settings), algo)
+        if cell and cell_settings(cell["settings"], algo) == wanted:
             cells[(scenario, algo)] = cell
         else:
             todo.append((scenario, algo))

@@ -180,3 +180,6 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     capsys.readouterr()
     assert search.main(argv) == 0
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
+    wider = [*argv[:4], "turbulence", "strong_wind", *argv[5:]]  # the cell made above is kept
+    assert search.main(wider) == 0
+    assert "1 of 2 programs already done; 1 to train" in capsys.readouterr().err
