@@ -12,14 +12,16 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import inspect
 import math
 import os
 import re
+import signal
 import sys
 import typing
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, NoReturn
 
 import jax
@@ -27,6 +29,7 @@ import jax
 from ccrjax.checks import in_interval, interval_text
 
 USAGE_ERROR = 2
+INTERRUPTED = 130  # the shell's status for a command stopped by Ctrl-C
 
 
 class UsageError(Exception):
@@ -38,6 +41,21 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, so a command
+    stopped either way ends through the same clean path (status 130, one message)."""
+
+    def interrupt(number: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def fail(prog: str, message: str, status: int = USAGE_ERROR) -> NoReturn:

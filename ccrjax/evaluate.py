@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ccrjax import cli
-from ccrjax.cli import UsageError
+from ccrjax.cli import INTERRUPTED, UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
 from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, summary_table, write_atomic
 from ccrjax.run.spec import RunSpec
@@ -68,9 +68,9 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
         spec = RunSpec.from_dict(folder.read_config()["run"])
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"cannot read {folder.config_path}: {error}") from None
-    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
-    if not checkpoints.steps():
+    if not folder.has_checkpoint():
         raise UsageError(f"{folder.path} has no checkpoint yet")
+    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
     program = make_train(dataclasses.replace(spec.train, eval_episodes=episodes))
     seeds = spec.seed_list
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
@@ -123,9 +123,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     cli.enable_compilation_cache(cli.default_cache_dir())
     try:
-        return evaluate_run(args.run, args.episodes, args.seed, not args.no_pictures)
+        with cli.sigterm_as_interrupt():
+            return evaluate_run(args.run, args.episodes, args.seed, not args.no_pictures)
     except (UsageError, ValueError) as error:
         cli.fail(PROG, str(error))
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the files it writes are written whole
+        print(f"{PROG}: stopped; the run's checkpoints are unchanged (evaluation.json and "
+              "the pictures are replaced only once each is complete)", file=sys.stderr,
+              flush=True)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

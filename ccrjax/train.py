@@ -16,18 +16,22 @@ the folder's files).
 A run stopped at any moment (Ctrl-C, SIGTERM, even SIGKILL) and resumed with
 ``--resume`` ends with exactly the same parameters and metrics as the same run
 never interrupted: the whole state, random keys included, is in the checkpoint,
-and the same compiled chunk runs from it. Ctrl-C and SIGTERM save a checkpoint
-before exiting. Mistakes on the command line get one line and exit status 2.
+and the same compiled chunk runs from it. Ctrl-C and SIGTERM are honoured at the next
+safe point (after compilation, or after the current chunk, which saves a checkpoint) and
+exit with status 130 saying what was kept; a run stopped before its first checkpoint starts
+again in the same folder. Mistakes on the command line get one line and exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib.util
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -46,7 +50,7 @@ from ccrjax.agents import ALGOS
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.agents.replay import grow
-from ccrjax.cli import UsageError
+from ccrjax.cli import INTERRUPTED, UsageError
 from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
 from ccrjax.run.folder import (
@@ -74,7 +78,6 @@ from ccrjax.viz.episode_pictures import (
 from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 
 PROG = "python -m ccrjax.train"
-INTERRUPTED = 130  # the shell's status for a run stopped by Ctrl-C
 NONFINITE = 1
 
 
@@ -279,11 +282,16 @@ def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
             record["schedule"] = spec.train.schedule()
         return folder, spec, record
     spec = resolve(args, None)
-    if folder.holds_run():
+    if folder.holds_run() and folder.has_checkpoint():
         raise UsageError(
             f"{folder.path} already holds a run; pass --resume to continue it, "
             "or choose another --out (nothing was overwritten)"
         )
+    if folder.holds_run():  # nothing of it can be resumed: this run takes its place
+        print(f"{folder.path} holds a run stopped before its first checkpoint; this run "
+              "starts in its place", file=sys.stderr, flush=True)
+        check_writable(folder.path)
+        return folder, spec, None
     if folder.path.exists() and (not folder.path.is_dir() or any(folder.path.iterdir())):
         raise UsageError(f"{folder.path} exists and is not an empty folder; choose another --out")
     check_writable(folder.path)
@@ -354,11 +362,26 @@ def compile_phase(what: str, function, *examples, ticker: bool):
 
 # ---------------------------------------------------------------------------- training
 class StopRequest:
-    """Turns the first Ctrl-C / SIGTERM into a request honoured between chunks."""
+    """Turns the first Ctrl-C / SIGTERM into a request the command honours at its next safe
+    point: after compilation (XLA cannot be interrupted while it compiles), after the chunk
+    in progress (which then saves a checkpoint), or once a finished run's files are written.
+    A second request raises ``KeyboardInterrupt`` as soon as Python runs again."""
+
+    WHEN = {
+        "preparing": "stopping as soon as the training program is compiled (XLA cannot be "
+                     "interrupted while it compiles)",
+        "training": "finishing the current chunk, then saving a checkpoint",
+        "finishing": "the run has finished; stopping once its pictures and policy are written",
+    }
 
     def __init__(self) -> None:
         self.signal_name: str | None = None
+        self.phase = "preparing"
         self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> bool:
+        return self.signal_name is not None
 
     def __enter__(self) -> StopRequest:
         for number in (signal.SIGINT, signal.SIGTERM):
@@ -374,9 +397,8 @@ class StopRequest:
             signal.signal(number, self._previous.get(number, signal.SIG_DFL))
             raise KeyboardInterrupt
         self.signal_name = signal.Signals(number).name
-        print(f"\n{self.signal_name}: finishing the current chunk, then saving a checkpoint "
-              "(press again to stop at once, losing the work since the last checkpoint)",
-              file=sys.stderr, flush=True)
+        print(f"\n{self.signal_name}: {self.WHEN[self.phase]} (press again to stop at once, "
+              "losing the work since the last checkpoint)", file=sys.stderr, flush=True)
 
 
 def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
@@ -487,6 +509,20 @@ def prepare(folder: RunFolder, spec: RunSpec, record: dict | None,
     if record.get("fingerprint") != run_fingerprint:
         raise UsageError(f"{folder.config_path} does not match the run it describes")
     checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
+    try:
+        return _prepared(folder, spec, program, checkpoints, keys, abstract_state, size,
+                         run_fingerprint, resuming, progress_bar)
+    except BaseException:  # no writer thread outlives a refused or interrupted start
+        checkpoints.close()
+        folder.close_tensorboard()
+        raise
+
+
+def _prepared(folder: RunFolder, spec: RunSpec, program: Any, checkpoints: Checkpoints,
+              keys: jax.Array, abstract_state: Any, size: int, run_fingerprint: str,
+              resuming: bool, progress_bar: bool) -> Session:
+    """:func:`prepare` once the checkpoints are open: restore, compile, first evaluation."""
+    config, seeds = spec.train, spec.seed_list
     chunk_steps = config.iterations_per_eval * config.steps_per_iteration
     total_steps = program.num_evaluations * chunk_steps
     state, history, wall_before = None, [], 0.0
@@ -494,10 +530,9 @@ def prepare(folder: RunFolder, spec: RunSpec, record: dict | None,
         state, history, wall_before = restore(folder, checkpoints, program, keys,
                                               abstract_state, run_fingerprint, total_steps)
     elif resuming:
-        raise UsageError(
-            f"--resume: {folder.path} has no checkpoint (the run stopped before its first one); "
-            "start it again with another --out"
-        )
+        print(f"{folder.path} has no checkpoint (the run stopped before its first one): "
+              "it starts again from the beginning, with its configuration",
+              file=sys.stderr, flush=True)
     started = time.perf_counter()  # the run's wall time counts its compilation
     chunk = compile_phase(
         f"the training program for {len(seeds)} seed(s) ({size / 2**20:,.0f} MiB of "
@@ -513,6 +548,8 @@ def prepare(folder: RunFolder, spec: RunSpec, record: dict | None,
         session.state, point, _ = chunk(state, False)  # the untrained policy's evaluation
         session.history = point_rows(jax.device_get(point), seeds, session.wall())
         folder.rewrite_metrics(session.history)
+        # A start that stopped before its first checkpoint may have left events behind.
+        shutil.rmtree(folder.tensorboard_dir, ignore_errors=True)
         folder.open_tensorboard(seeds, purge_step=None)
         for row in session.history:
             folder.log_scalars(row["seed"], row["env_steps"], _eval_scalars(row))
@@ -623,12 +660,44 @@ def close(session: Session, keep_buffer: bool) -> list[int]:
     return saved
 
 
+def what_was_kept(folder: RunFolder, saved: Sequence[int]) -> str:
+    """What a stopped run leaves, and the command that continues it."""
+    if saved:
+        return (f"checkpoint {saved[-1]:,} is saved. Continue with:\n"
+                f"  {PROG} --out {folder.path} --resume")
+    return ("no checkpoint was written; the folder keeps its configuration. Start it again "
+            f"with the same command, or with:\n  {PROG} --out {folder.path} --resume")
+
+
 def train_run(folder: RunFolder, spec: RunSpec, record: dict | None, progress_bar: bool,
-              keep_buffer: bool = False) -> int:
+              keep_buffer: bool = False, stop: StopRequest | None = None) -> int:
     """Trains (or resumes) the run in ``folder`` (:func:`prepare`, :func:`run_chunks`,
     :func:`close`, then the pictures and summary); returns the exit status. The finished
-    run's last checkpoint keeps its replay buffer only with ``keep_buffer``."""
-    session = prepare(folder, spec, record, progress_bar)
+    run's last checkpoint keeps its replay buffer only with ``keep_buffer``. Ctrl-C and
+    SIGTERM are honoured at every moment (:class:`StopRequest`; ``stop`` is the caller's,
+    or one held for the call): status 130, with what was kept."""
+    with contextlib.ExitStack() as stack:
+        if stop is None:
+            stop = stack.enter_context(StopRequest())
+        return _train(folder, spec, record, progress_bar, keep_buffer, stop)
+
+
+def _train(folder: RunFolder, spec: RunSpec, record: dict | None, progress_bar: bool,
+           keep_buffer: bool, stop: StopRequest) -> int:
+    stop.phase = "preparing"
+    try:
+        session = prepare(folder, spec, record, progress_bar)
+    except KeyboardInterrupt:  # a second request while preparing
+        saved = folder.checkpoint_steps()  # prepare closed its checkpoints
+        print(f"{PROG}: stopped at once before training began; "
+              f"{what_was_kept(folder, saved)}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    if stop.requested:
+        saved = close(session, keep_buffer=True)
+        print(f"stopped by {stop.signal_name} before training began; "
+              f"{what_was_kept(folder, saved)}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    stop.phase = "training"
     progress = Progress(session.total_steps, len(session.seeds), session.steps, progress_bar)
 
     def show(rows: list[dict[str, Any]]) -> None:
@@ -636,27 +705,43 @@ def train_run(folder: RunFolder, spec: RunSpec, record: dict | None, progress_ba
                         float(np.mean([r["success_rate"] for r in rows])),
                         float(np.mean([r["danger_frequency"] for r in rows])))
 
-    with StopRequest() as stop:
-        bad = run_chunks(session, show, lambda: stop.signal_name is not None)
+    try:
+        bad = run_chunks(session, show, lambda: stop.requested)
+    except KeyboardInterrupt:  # a second request: the checkpoint being written completes
         progress.close()
-        if bad is not None:
-            kept = session.checkpoints.steps()
-            kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
-                         if kept else "it had written no checkpoint yet")
-            print(f"{PROG}: error: training became non-finite at iteration {bad.iteration} "
-                  f"(seed {bad.seed}); the run stopped and {kept_note}",
-                  file=sys.stderr, flush=True)
-        saved = close(session, keep_buffer)
+        saved = close(session, keep_buffer=True)
+        print(f"{PROG}: stopped at once at {session.steps:,} steps per seed; "
+              f"{what_was_kept(folder, saved)}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    progress.close()
+    if bad is not None:
+        kept = session.checkpoints.steps()
+        kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
+                     if kept else "it had written no checkpoint yet")
+        print(f"{PROG}: error: training became non-finite at iteration {bad.iteration} "
+              f"(seed {bad.seed}); the run stopped and {kept_note}",
+              file=sys.stderr, flush=True)
+    saved = close(session, keep_buffer)
     if bad is not None:
         return NONFINITE
     if not session.finished:
-        note = (f"checkpoint {saved[-1]:,} is saved" if saved else "no checkpoint was written")
-        print(f"stopped by {stop.signal_name} at {session.steps:,} steps per seed; {note}. "
-              f"Continue with:\n  {PROG} --out {folder.path} --resume",
+        print(f"stopped by {stop.signal_name} at {session.steps:,} steps per seed; "
+              f"{what_was_kept(folder, saved)}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    stop.phase = "finishing"
+    try:
+        finish(folder, session.program, session.state, session.seeds, session.history,
+               session.wall())
+    except KeyboardInterrupt:
+        print(f"{PROG}: stopped at once; the run finished and checkpoint {saved[-1]:,} is "
+              "saved, but not all its pictures and its policy were written: "
+              f"python -m ccrjax.evaluate {folder.path} redraws the pictures",
               file=sys.stderr, flush=True)
         return INTERRUPTED
-    finish(folder, session.program, session.state, session.seeds, session.history,
-           session.wall())
+    if stop.requested:
+        print(f"stopped by {stop.signal_name} after the run finished; everything is written",
+              file=sys.stderr, flush=True)
+        return INTERRUPTED
     return 0
 
 
@@ -709,19 +794,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     cli.enable_compilation_cache(None if args.no_compilation_cache else args.compilation_cache)
-    try:
-        folder, spec, record = open_folder(args)
-        return train_run(folder, spec, record,
-                         progress_bar=(not args.no_progress) and sys.stderr.isatty(),
-                         keep_buffer=args.keep_buffer)
-    except UsageError as error:
-        cli.fail(PROG, str(error))
-    except ValueError as error:  # a configuration value the dataclasses refuse
-        cli.fail(PROG, str(error))
-    except KeyboardInterrupt:
-        print(f"{PROG}: stopped at once; the last checkpoint (if any) is intact",
-              file=sys.stderr)
-        return INTERRUPTED
+    with StopRequest() as stop:
+        try:
+            folder, spec, record = open_folder(args)
+            if stop.requested:
+                print(f"stopped by {stop.signal_name} before the run began; nothing was written",
+                      file=sys.stderr, flush=True)
+                return INTERRUPTED
+            return train_run(folder, spec, record,
+                             progress_bar=(not args.no_progress) and sys.stderr.isatty(),
+                             keep_buffer=args.keep_buffer, stop=stop)
+        except UsageError as error:
+            cli.fail(PROG, str(error))
+        except ValueError as error:  # a configuration value the dataclasses refuse
+            cli.fail(PROG, str(error))
+        except KeyboardInterrupt:
+            print(f"{PROG}: stopped at once before the run began; nothing was written",
+                  file=sys.stderr, flush=True)
+            return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -207,6 +207,153 @@ def test_ctrl_c_saves_a_checkpoint_exits_cleanly_and_resumes_exactly(
     assert_same_run(finished_run, out)
 
 
+# A real process signals itself at one chosen moment: the driver wraps the function that
+# runs then, so each test lands its Ctrl-C or SIGTERM where it means to, every time.
+STOP_AT = """
+import os, signal, sys
+import jax
+from ccrjax import evaluate, train
+from ccrjax.run.checkpoint import Checkpoints
+
+command, moment, name, times, *argv = sys.argv[1:]
+
+
+def stop():
+    for _ in range(int(times)):
+        os.kill(os.getpid(), getattr(signal, name))
+
+
+def stopping_before(function):
+    def wrapped(*args, **kwargs):
+        stop()
+        return function(*args, **kwargs)
+    return wrapped
+
+
+if moment == "compilation":
+    train.compile_phase = stopping_before(train.compile_phase)
+elif moment == "first-chunk":
+    prepare = train.prepare
+
+    def prepare_then_stop_in_the_first_chunk(*args, **kwargs):
+        session = prepare(*args, **kwargs)
+        chunk = session.chunk
+        session.chunk = lambda state, learn: (stop() if learn else None, chunk(state, learn))[1]
+        return session
+    train.prepare = prepare_then_stop_in_the_first_chunk
+elif moment == "checkpoint-write":
+    save = Checkpoints.save
+
+    def save_then_stop(self, *args, **kwargs):
+        save(self, *args, **kwargs)  # the write goes on in orbax's threads
+        stop()
+    Checkpoints.save = save_then_stop
+elif moment == "evaluation":
+    jax.device_get = stopping_before(jax.device_get)
+module = train if command == "train" else evaluate
+sys.exit(module.main(argv))
+"""
+
+
+def stopped_at(moment: str, signal_name: str, times: int, argv, env, command: str = "train"):
+    """Runs ``python -m ccrjax.<command> argv`` in a process that sends itself
+    ``signal_name`` ``times`` times at ``moment``; returns its status and stderr."""
+    result = subprocess.run(
+        [sys.executable, "-c", STOP_AT, command, moment, signal_name, str(times),
+         *map(str, argv)],
+        capture_output=True, text=True, env=env, timeout=300,
+    )
+    return result.returncode, result.stderr
+
+
+def checkpoint_steps(out: Path) -> list[int]:
+    return RunFolder(out).checkpoint_steps()
+
+
+def test_sigterm_during_compilation_exits_130_and_the_same_command_starts_over(
+    finished_run, tmp_path, subprocess_env, capsys
+):
+    out = tmp_path / "compiling"
+    status, err = stopped_at("compilation", "SIGTERM", 1, [*TINY, "--out", out],
+                             subprocess_env)
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err
+    assert "stopped by SIGTERM before training began; no checkpoint was written" in err
+    assert checkpoint_steps(out) == [] and (out / "config.json").exists()
+    status, _, err = run_main(train, [*TINY, "--out", out], capsys)  # the same command
+    assert status == 0, err
+    assert "stopped before its first checkpoint; this run starts in its place" in err
+    assert_same_run(finished_run, out)
+
+
+@pytest.mark.slow
+def test_a_second_ctrl_c_during_compilation_stops_at_once_and_resume_starts_over(
+    finished_run, tmp_path, subprocess_env, capsys
+):
+    out = tmp_path / "twice"
+    status, err = stopped_at("compilation", "SIGINT", 2, [*TINY, "--out", out], subprocess_env)
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err and "stopped at once before training began" in err
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress",
+                                      "--keep-buffer"], capsys)
+    assert status == 0, err
+    assert "starts again from the beginning" in err
+    assert_same_run(finished_run, out)
+
+
+def test_ctrl_c_during_the_first_chunk_finishes_it_and_saves_a_checkpoint(
+    tmp_path, subprocess_env
+):
+    out = tmp_path / "first-chunk"
+    status, err = stopped_at("first-chunk", "SIGINT", 1, [*TINY, "--out", out],
+                             subprocess_env)
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err
+    assert "finishing the current chunk" in err and "checkpoint 200 is saved" in err
+    assert checkpoint_steps(out) == [200]
+
+
+def test_a_second_sigterm_during_a_checkpoint_write_keeps_it_whole_and_resumes_exactly(
+    finished_run, tmp_path, subprocess_env, capsys
+):
+    out = tmp_path / "writing"
+    status, err = stopped_at("checkpoint-write", "SIGTERM", 2, [*TINY, "--out", out],
+                             subprocess_env)
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err and "stopped at once at 200 steps per seed" in err
+    assert "checkpoint 200 is saved" in err and checkpoint_steps(out) == [200]
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress",
+                                      "--keep-buffer"], capsys)
+    assert status == 0, err
+    assert_same_run(finished_run, out)
+
+
+def test_evaluate_stopped_during_evaluation_exits_130_and_writes_nothing(
+    finished_run, tmp_path, subprocess_env
+):
+    out = tmp_path / "evaluating"
+    shutil.copytree(finished_run, out)
+    (out / "evaluation.json").unlink(missing_ok=True)
+    status, err = stopped_at("evaluation", "SIGTERM", 1, [out, "--episodes", "4"],
+                             subprocess_env, command="evaluate")
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err and "stopped; the run's checkpoints are unchanged" in err
+    assert not (out / "evaluation.json").exists()
+
+
+def test_evaluate_of_a_run_without_checkpoint_prints_one_line_and_nothing_else(
+    finished_run, tmp_path, subprocess_env
+):
+    out = tmp_path / "no-checkpoint"  # a run stopped before its first checkpoint
+    out.mkdir()
+    shutil.copy(finished_run / "config.json", out / "config.json")
+    result = subprocess.run([sys.executable, "-m", "ccrjax.evaluate", str(out)],
+                            capture_output=True, text=True, env=subprocess_env, timeout=300)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"python -m ccrjax.evaluate: error: {out} has no checkpoint yet"]
+
+
 def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(finished_run, tmp_path, capsys):
     out = tmp_path / "corrupted"
     shutil.copytree(finished_run, out)
@@ -284,14 +431,9 @@ def test_a_folder_holding_a_run_is_never_overwritten(finished_run, tmp_path, cap
     assert (other / "notes.txt").read_text() == "mine"
 
 
-def test_resume_needs_a_run_with_a_checkpoint(finished_run, tmp_path, capsys):
+def test_resume_needs_a_run_folder(tmp_path, capsys):
     status, _, err = run_main(train, ["--out", tmp_path / "nothing", "--resume"], capsys)
     assert_usage_error(status, err, "holds no run")
-    bare = tmp_path / "bare"
-    bare.mkdir()
-    shutil.copy(finished_run / "config.json", bare / "config.json")
-    status, _, err = run_main(train, ["--out", bare, "--resume"], capsys)
-    assert_usage_error(status, err, "no checkpoint")
 
 
 def test_resume_refuses_options_that_contradict_the_run(finished_run, tmp_path, capsys):

@@ -94,6 +94,12 @@ class Checkpoints:
             ),
             item_names=("state", "buffer", "meta"),
         )
+        # orbax removes unfinished writes in a thread of its own; a process that ends before
+        # that thread does (a refused or interrupted command) would print its traceback at
+        # exit. Waiting here (a directory listing) keeps every exit quiet.
+        await_cleanup = getattr(self.manager, "_maybe_await_cleanup_tmp_directory", None)
+        if await_cleanup is not None:
+            await_cleanup()
 
     def steps(self) -> list[int]:
         return sorted(self.manager.all_steps())

@@ -197,6 +197,16 @@ class RunFolder:
     def holds_run(self) -> bool:
         return self.config_path.exists()
 
+    def checkpoint_steps(self) -> list[int]:
+        """The steps of the checkpoints written here (orbax names a complete one by its
+        step; one being written has a temporary name)."""
+        if not self.checkpoint_dir.is_dir():
+            return []
+        return sorted(int(p.name) for p in self.checkpoint_dir.iterdir() if p.name.isdigit())
+
+    def has_checkpoint(self) -> bool:
+        return bool(self.checkpoint_steps())
+
     # ------------------------------------------------------------ config
     def write_config(self, record: dict[str, Any]) -> None:
         write_atomic(self.config_path, json.dumps(record, indent=2, sort_keys=False) + "\n")
