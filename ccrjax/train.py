@@ -68,6 +68,7 @@ from ccrjax.run.policy import export_policy
 from ccrjax.run.spec import RunSpec
 from ccrjax.training import DEFAULT_BUDGET, TrainConfig, make_train
 from ccrjax.training.config import _nested_config_types
+from ccrjax.training.program import NonFinite, first_nonfinite
 from ccrjax.transforms import VARIANTS
 from ccrjax.viz.episode_pictures import (
     PICTURE_KEY,
@@ -600,14 +601,6 @@ def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax
             float(restored.meta["wall_time_s"]))
 
 
-@dataclasses.dataclass(frozen=True)
-class NonFinite:
-    """Where a run's training turned non-finite."""
-
-    iteration: int
-    seed: int
-
-
 def run_chunks(session: Session, on_point: Callable[[list[dict[str, Any]]], None],
                should_stop: Callable[[], bool]) -> NonFinite | None:
     """Trains chunk after chunk (``--eval-every`` steps, then an evaluation) until the
@@ -622,10 +615,9 @@ def run_chunks(session: Session, on_point: Callable[[list[dict[str, Any]]], None
             break
         state, point, training = session.chunk(session.state, True)
         point, training, bad = jax.device_get((point, training, state.nonfinite_iteration))
-        bad = np.asarray(bad)
-        if np.any(bad >= 0):
-            seed_index = int(np.flatnonzero(bad >= 0)[0])
-            return NonFinite(iteration=int(bad[seed_index]), seed=seeds[seed_index])
+        found = first_nonfinite(bad, seeds)
+        if found is not None:
+            return found
         session.state = state
         rows = point_rows(point, seeds, session.wall())
         session.history.extend(rows)
@@ -718,8 +710,7 @@ def _train(folder: RunFolder, spec: RunSpec, record: dict | None, progress_bar: 
         kept = session.checkpoints.steps()
         kept_note = (f"its last good checkpoint ({kept[-1]:,} steps per seed) is kept"
                      if kept else "it had written no checkpoint yet")
-        print(f"{PROG}: error: training became non-finite at iteration {bad.iteration} "
-              f"(seed {bad.seed}); the run stopped and {kept_note}",
+        print(f"{PROG}: error: {bad.message()}; the run stopped and {kept_note}",
               file=sys.stderr, flush=True)
     saved = close(session, keep_buffer)
     if bad is not None:

@@ -13,6 +13,7 @@ from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.envs.env import CCREnv
 from ccrjax.training import NonFiniteTraining, TrainConfig, make_train
 from ccrjax.training.acting import episode_metrics, run_episode
+from ccrjax.training.program import NonFinite, first_nonfinite
 from ccrjax.transforms import Pessimistic, Plain
 
 TINY = TrainConfig(
@@ -237,3 +238,9 @@ def test_rounded_budgets_are_reported_not_hidden():
     assert "--steps 30,000 runs as 33,600" in schedule["notes"][1]
     exact = TrainConfig(algo="maddpg", total_env_steps=40_000, eval_every=20_000).schedule()
     assert exact["notes"] == [] and exact["ran"] == exact["requested"]
+
+
+def test_the_non_finite_report_names_the_earliest_iteration_and_its_seed():
+    assert first_nonfinite(np.array([-1, -1]), [3, 4]) is None
+    assert first_nonfinite(np.array([-1, 9, 5, 5]), [10, 11, 12, 13]) == NonFinite(5, 12)
+    assert "iteration 5 (seed 12)" in NonFinite(5, 12).message()

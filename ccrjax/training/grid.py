@@ -44,7 +44,7 @@ from jax.sharding import PartitionSpec as P
 
 from ccrjax.training.acting import run_episode
 from ccrjax.training.config import TrainConfig, make_env
-from ccrjax.training.program import NonFiniteTraining, make_train
+from ccrjax.training.program import NonFiniteTraining, first_nonfinite, make_train
 
 GRID_AXIS = "grid"
 
@@ -260,11 +260,9 @@ class GridTraining:
         start = time.perf_counter()
         out = self.grid(self.inputs)
         run_s = time.perf_counter() - start
-        nonfinite = out["nonfinite"]
-        if np.any(nonfinite >= 0):
-            bad = int(np.flatnonzero(nonfinite >= 0)[0])
-            raise NonFiniteTraining(f"run {bad} (seed {self.seeds[bad]}) became non-finite at "
-                                    f"iteration {int(nonfinite[bad])}")
+        found = first_nonfinite(out["nonfinite"], self.seeds)
+        if found is not None:
+            raise NonFiniteTraining(found.message())
         return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
                         history={k: np.asarray(v) for k, v in out["history"].items()},
                         policy=out["policy"], episodes=out.get("episodes"),

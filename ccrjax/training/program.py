@@ -18,6 +18,8 @@ checkpoints: :mod:`ccrjax.train`).
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import jax
@@ -38,6 +40,28 @@ from ccrjax.training.config import (
 
 class NonFiniteTraining(RuntimeError):
     """A learner's parameters or losses stopped being finite during training."""
+
+
+@dataclasses.dataclass(frozen=True)
+class NonFinite:
+    """Where training first turned non-finite: the iteration, and the seed it happened in."""
+
+    iteration: int
+    seed: int
+
+    def message(self) -> str:
+        return (f"training became non-finite at iteration {self.iteration} (seed {self.seed}); "
+                "the parameters kept are the last finite ones")
+
+
+def first_nonfinite(nonfinite_iteration: Any, seeds: Sequence[int]) -> NonFinite | None:
+    """The earliest non-finite iteration over runs (``nonfinite_iteration``: one per run,
+    -1 where the run stayed finite; the first of ``seeds`` on a tie), or ``None``."""
+    bad = np.asarray(jax.device_get(nonfinite_iteration)).reshape(-1)
+    if not np.any(bad >= 0):
+        return None
+    index = int(np.argmin(np.where(bad >= 0, bad, np.iinfo(np.int64).max)))
+    return NonFinite(iteration=int(bad[index]), seed=int(seeds[index]))
 
 
 @struct.dataclass
@@ -186,20 +210,18 @@ class TrainProgram:
         """``num_iterations`` iterations in one ``lax.scan``; metrics stacked per iteration."""
         return jax.lax.scan(lambda s, _: self.iteration(s), state, None, length=num_iterations)
 
-    def raise_if_nonfinite(self, state: TrainState) -> None:
-        """Raises :class:`NonFiniteTraining` naming the iteration if any seed went non-finite.
+    def raise_if_nonfinite(self, state: TrainState, seeds: Sequence[int] | None = None
+                           ) -> None:
+        """Raises :class:`NonFiniteTraining` naming the iteration and seed (``seeds``: the
+        seeds of a vmapped ``state``; by default their indices) if any went non-finite.
 
         The compiled program never applies a non-finite update (it keeps the last
         finite parameters and records the iteration), so the state is still usable.
         """
-        bad = np.asarray(jax.device_get(state.nonfinite_iteration)).reshape(-1)
-        if np.any(bad >= 0):
-            seeds = [int(i) for i in np.flatnonzero(bad >= 0)]
-            first = int(bad[bad >= 0].min())
-            raise NonFiniteTraining(
-                f"training became non-finite at iteration {first} (seed index {seeds}); "
-                "the parameters kept are the last finite ones"
-            )
+        runs = np.size(jax.device_get(state.nonfinite_iteration))
+        found = first_nonfinite(state.nonfinite_iteration, seeds or range(runs))
+        if found is not None:
+            raise NonFiniteTraining(found.message())
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, state: TrainState, key: jax.Array) -> dict[str, jax.Array]:
