@@ -78,12 +78,10 @@ def test_draw_and_animate(record: EpisodeRecord, tmp_path) -> None:
 
 
 def test_state_colours_are_drawn(env: CCREnv, record: EpisodeRecord, tmp_path) -> None:
-    """CCR states from a function of the trajectory; their colours appear in the GIF."""
-
-    def states(trajectory) -> jax.Array:
-        # [T + 1, N, B]: robot i is in state i % 3, to show all three colours.
-        shape = trajectory.reward.shape
-        return jnp.broadcast_to(jnp.arange(shape[1])[None, :, None] % 3, shape)
+    """CCR states given per step, robot and environment; their colours appear in the GIF."""
+    # [T + 1, N, B]: robot i is in state i % 3, to show all three colours.
+    shape = (STEPS + 1, env.num_robots, env.num_envs)
+    states = np.broadcast_to(np.arange(shape[1])[None, :, None] % 3, shape)
 
     plain = record  # the same rollout, recorded without states
     record = record_episode(env, random_policy, jax.random.key(0), env_index=1, states=states,

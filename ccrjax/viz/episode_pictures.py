@@ -27,6 +27,7 @@ from ccrjax.viz.render import (
     animate_episode,
     compile_for,
     draw_episode,
+    episode_record,
 )
 
 # Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
@@ -48,32 +49,14 @@ def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Ar
         return episode.position, episode.hazard, episode.danger, episode.info.get("ccr_state")
 
     position, hazard, danger, ccr_state = compile_for(rollout, (state, key))(state, key)
-    positions = np.asarray(position)[..., 0]  # [T + 1, N, 2]
-    steps_danger = np.asarray(danger)[..., 0] > 0  # [T, N]
-    danger = np.concatenate([np.zeros_like(steps_danger[:1]), steps_danger])
     if ccr_state is None:
-        states = np.zeros(positions.shape[:2], np.int32)
-        names, colours = DEFAULT_STATE_NAMES, DEFAULT_STATE_COLOURS
-    else:
-        # The reset's positions come before any transition: standby.
-        steps = np.asarray(ccr_state)[..., 0].astype(np.int32)  # [T, N]
-        states = np.concatenate([np.zeros_like(steps[:1]), steps])
-        names, colours = CCR_STATE_NAMES, CCR_STATE_COLOURS
-    return EpisodeRecord(
-        scenario=env.scenario.name,
-        positions=positions,
-        robot_radius=env.robot_radius,
-        goal=tuple(float(v) for v in env.layout.goal),
-        goal_radius=env.layout.goal_radius,
-        hazard_centre=np.asarray(hazard.centre)[:, 0],
-        hazard_half_extent=np.asarray(hazard.half_extent)[:, 0],
-        hazard_direction=np.asarray(hazard.direction)[:, 0],
-        states=states,
-        state_names=names,
-        state_colours=colours,
-        danger=danger,
-        caption=caption,
-    )
+        return episode_record(env, hazard, position, danger, 0, None, DEFAULT_STATE_NAMES,
+                              DEFAULT_STATE_COLOURS, caption)
+    # The reset's positions come before any transition: standby.
+    steps = np.asarray(ccr_state)[..., 0].astype(np.int32)  # [T, N]
+    states = np.concatenate([np.zeros_like(steps[:1]), steps])
+    return episode_record(env, hazard, position, danger, 0, states, CCR_STATE_NAMES,
+                          CCR_STATE_COLOURS, caption)
 
 
 def write_episode_pictures(record: EpisodeRecord, folder: Path, stem: str = "episode"

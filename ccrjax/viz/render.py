@@ -34,6 +34,9 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, FancyArrowPatch, Patch, Rectangle
 from PIL import Image
 
+from ccrjax.training.acting import run_episode
+from ccrjax.transforms import Plain
+
 __all__ = [
     "CCR_STATE_COLOURS",
     "CCR_STATE_NAMES",
@@ -43,6 +46,7 @@ __all__ = [
     "Policy",
     "animate_episode",
     "compile_for",
+    "episode_record",
     "draw_episode",
     "record_episode",
 ]
@@ -227,7 +231,7 @@ class EpisodeRecord:
 
 
 # --------------------------------------------------------------------------- rollout
-StatesArg = np.ndarray | jax.Array | Callable[[Any], Any] | None
+StatesArg = np.ndarray | jax.Array | None
 
 
 def record_episode(
@@ -242,21 +246,19 @@ def record_episode(
     optimize: bool = False,
     caption: str = "",
 ) -> EpisodeRecord:
-    """Resets ``env``, runs one episode, and records environment ``env_index``.
+    """Resets ``env``, runs one episode of ``policy``, and records environment ``env_index``.
 
-    The ``env.episode_length`` steps run with ``env.transition`` (no automatic
-    reset) inside one jitted ``lax.scan``.
+    The episode is :func:`ccrjax.training.acting.run_episode`'s, the loop that training,
+    evaluation and the sweeps run (plain rewards, no transform), compiled once.
 
     Args:
       env: a :class:`ccrjax.envs.env.CCREnv`.
-      policy: a pure function ``(obs float[N, F, B], key) -> action`` of the
-        env's action layout; it is traced once.
+      policy: a pure function ``(obs float[N, F, B], key) -> action float[N, 2, B]`` of the
+        env's layout; it is traced once.
       key: PRNG key for the reset and the policy.
       env_index: which environment of the batch to record.
-      states: the robots' state indices: ``None`` (all 0), an int array
-        ``[T + 1, N]`` or ``[T + 1, N, B]``, or a function of the stacked
-        brax states (every leaf with a leading ``T + 1`` axis, the reset's
-        first) that returns such an array.
+      states: the robots' state indices: ``None`` (all 0), or an int array ``[T + 1, N]``
+        or ``[T + 1, N, B]`` (the reset's first).
       state_names: legend names of the states.
       state_colours: matplotlib colours of the states.
       optimize: compile the rollout with XLA's full backend optimisation. By
@@ -275,44 +277,40 @@ def record_episode(
     ):
         raise ValueError(f"env_index must be an integer in [0, {num_envs - 1}], got {env_index!r}")
     env_index = int(env_index)
-    keep_trajectory = callable(states)
-    steps = int(env.episode_length)
+    plain = Plain()
 
-    def rollout(key: jax.Array) -> tuple[Any, Any]:
-        reset_key, policy_key = jax.random.split(key)
-        first = env.reset(reset_key)
+    def rollout(key: jax.Array) -> tuple[Any, Any, Any]:
+        def act(obs: jax.Array, step_key: jax.Array) -> jax.Array:  # learners' layout
+            action = policy(jnp.transpose(obs, (1, 2, 0)), step_key)  # [N, 2, B]
+            return jnp.transpose(action, (2, 0, 1))
 
-        def body(state: Any, step_key: jax.Array) -> tuple[Any, Any]:
-            state = env.transition(state, policy(state.obs, step_key))
-            kept = state if keep_trajectory else state.pipeline_state.position
-            return state, (kept, state.metrics["danger"])
+        _, episode = run_episode(env, plain, plain.init(env), act, False, key)
+        return episode.hazard, episode.position, episode.danger
 
-        _, (stacked, danger) = jax.lax.scan(body, first, jax.random.split(policy_key, steps))
-        if keep_trajectory:
-            trajectory = jax.tree.map(
-                lambda a, b: jnp.concatenate([a[None], b]), first, stacked
-            )
-        else:
-            trajectory = jnp.concatenate([first.pipeline_state.position[None], stacked])
-        danger = jnp.concatenate([jnp.zeros_like(danger[:1]), danger])  # the reset: none
-        return first.pipeline_state.hazard, trajectory, danger
-
-    hazard, trajectory, danger = compile_for(rollout, (key,), optimize)(key)
-    positions = trajectory.pipeline_state.position if keep_trajectory else trajectory
-    positions = np.asarray(positions)[..., env_index]  # [T + 1, N, 2]
-
-    if states is None:
-        state_index = np.zeros(positions.shape[:2], np.int32)
-    else:
-        state_index = np.asarray(states(trajectory) if keep_trajectory else states)
-        if state_index.ndim == 3:
-            if state_index.shape[2] != num_envs:
+    hazard, positions, steps_danger = compile_for(rollout, (key,), optimize)(key)
+    if states is not None:
+        states = np.asarray(states)
+        if states.ndim == 3:
+            if states.shape[2] != num_envs:
                 raise ValueError(
                     f"states must be int[T + 1, N] or int[T + 1, N, {num_envs}], "
-                    f"got shape {list(state_index.shape)}"
+                    f"got shape {list(states.shape)}"
                 )
-            state_index = state_index[..., env_index]
+            states = states[..., env_index]
+    return episode_record(env, hazard, positions, steps_danger, env_index, states,
+                          state_names, state_colours, caption)
 
+
+def episode_record(env: Any, hazard: Any, positions: Any, steps_danger: Any, env_index: int,
+                   states: np.ndarray | None, state_names: Sequence[str],
+                   state_colours: Sequence[str], caption: str) -> EpisodeRecord:
+    """The :class:`EpisodeRecord` of environment ``env_index`` from a batched episode of
+    :func:`ccrjax.training.acting.run_episode` (its hazard, positions ``[T + 1, N, 2, B]`` and
+    per-step danger ``[T, N, B]``); the reset is recorded as safe, and with ``states``
+    (``[T + 1, N]``; ``None``: all 0)."""
+    positions = np.asarray(positions)[..., env_index]  # [T + 1, N, 2]
+    steps_danger = np.asarray(steps_danger)[..., env_index] > 0  # [T, N]
+    danger = np.concatenate([np.zeros_like(steps_danger[:1]), steps_danger])
     layout = env.layout
     return EpisodeRecord(
         scenario=env.scenario.name,
@@ -323,10 +321,10 @@ def record_episode(
         hazard_centre=np.asarray(hazard.centre)[:, env_index],
         hazard_half_extent=np.asarray(hazard.half_extent)[:, env_index],
         hazard_direction=np.asarray(hazard.direction)[:, env_index],
-        states=state_index,
+        states=np.zeros(positions.shape[:2], np.int32) if states is None else states,
         state_names=tuple(state_names),
         state_colours=tuple(state_colours),
-        danger=np.asarray(danger)[..., env_index] > 0,
+        danger=danger,
         caption=caption,
     )
 
