@@ -23,6 +23,7 @@ from ccrjax.training.acting import run_episode, to_batch_major_obs, to_env_actio
 from ccrjax.transforms.ccr import (
     CCR,
     CCRConfig,
+    CCRState,
     accumulate,
     command_vector,
     fit,
@@ -293,7 +294,7 @@ def test_rolling_mean_restarts_with_each_episode():
     np.testing.assert_allclose(
         smoothed, [100.0, (100 + 1) / 2, (100 + 1 + 4) / 3, (1 + 4 + 0) / 3], rtol=1e-6
     )
-    assert state.episode is None
+    assert isinstance(state, CCRState)  # the state between episodes, one structure
 
 
 # 48 transitions per episode: enough that the fit is well posed (15 features), so that
@@ -378,7 +379,7 @@ def test_jit_equals_no_jit(discrete_episodes):
             episode.transitions.reward, np.transpose(reference["reward"], (0, 2, 1)),
             rtol=1e-4, atol=1e-6,
         )
-    assert state.episode is None  # what is kept between episodes does not depend on E
+    assert isinstance(state, CCRState)  # what is kept between episodes does not depend on E
     assert float(state.statistics.total_weight) > 0
     assert np.any(np.asarray(state.coefficients) != 0)
 
@@ -485,7 +486,7 @@ def test_training_with_ccr_end_to_end():
     for state, history in results.values():
         assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(history))
         assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(state.transform))
-        assert state.transform.episode is None
+        assert isinstance(state.transform, CCRState)
         assert float(state.transform.statistics.total_weight) > 0
         program.raise_if_nonfinite(state)
 

@@ -9,14 +9,16 @@ the learner only sees the result. ``plain`` changes nothing; ``pessimistic``
 All arrays are in the environment's layout (batch axis last): observations
 ``[N, F, E]``, rewards ``[N, E]``.
 
-Interface (pure functions; ``state`` is the transform's own pytree)::
+Interface (pure functions; ``state`` and ``episode_state`` are the transform's own
+pytrees, each of one fixed structure)::
 
     extra_obs_size(env) -> int
-    default_params() -> dict[str, float]               # per-run numbers, may be traced
-    init(env, params) -> state                         # once per training run
-    start_episode(state, env_state) -> (state, obs)    # after env.reset
-    step(state, env_state, action, next_env_state) -> (state, obs, reward, info)
-    end_episode(state) -> state                        # after the episode's last step
+    default_params() -> dict[str, float]                       # per-run numbers, may be traced
+    init(env, params) -> state                                 # once per training run
+    start_episode(state, env_state) -> (episode_state, obs)    # after env.reset
+    step(episode_state, env_state, action, next_env_state)
+        -> (episode_state, obs, reward, info)
+    end_episode(episode_state) -> state                        # after the episode's last step
 
 ``params`` holds the transform's numeric hyperparameters (the pessimistic
 penalty, CCR's lambda) as arrays inside the state, so that one compiled program
@@ -25,9 +27,10 @@ per-robot diagnostics ``[N, E]`` of the step (empty for plain and pessimistic;
 CCR reports its emergency scores, intrinsic rewards and robot states). A
 transform's state must not depend on the number of environments ``E``, so that
 training and evaluation (which run different batches) share it: per-episode
-arrays are created by ``start_episode`` and dropped by ``end_episode``, so that
-the state a training iteration carries has the same shapes before and after an
-episode (``lax.scan`` needs that).
+arrays live in the episode state, which ``start_episode`` creates and
+``end_episode`` turns back into the state, so that the state a training iteration
+carries has one structure and the same shapes before and after an episode
+(``lax.scan`` needs that). Plain and pessimistic use one pytree for both.
 """
 
 from __future__ import annotations
@@ -55,10 +58,11 @@ class Transform(Protocol):
     def start_episode(self, state: Any, env_state: EnvState) -> tuple[Any, jax.Array]: ...
 
     def step(
-        self, state: Any, env_state: EnvState, action: jax.Array, next_env_state: EnvState
+        self, episode_state: Any, env_state: EnvState, action: jax.Array,
+        next_env_state: EnvState,
     ) -> tuple[Any, jax.Array, jax.Array, dict[str, jax.Array]]: ...
 
-    def end_episode(self, state: Any) -> Any: ...
+    def end_episode(self, episode_state: Any) -> Any: ...
 
 
 def as_params(defaults: dict[str, float], params: dict[str, Any] | None) -> dict[str, jax.Array]:

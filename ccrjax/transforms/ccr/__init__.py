@@ -41,6 +41,7 @@ from ccrjax.transforms.ccr.transform import (
     SENSING_DANGER,
     STANDBY,
     CCRConfig,
+    CCREpisodeState,
     CCRState,
     EpisodeArrays,
 )
@@ -49,6 +50,7 @@ __all__ = [
     "ACTIVATED",
     "CCR",
     "CCRConfig",
+    "CCREpisodeState",
     "CCRState",
     "DynamicsStatistics",
     "EpisodeArrays",

@@ -126,14 +126,23 @@ class EpisodeArrays:
 
 @struct.dataclass
 class CCRState:
-    """CCR's state. Outside an episode (``episode is None``) nothing depends on ``E``."""
+    """CCR's state from one episode to the next: nothing in it depends on the batch ``E``
+    (training and evaluation episodes share it)."""
 
     params: dict[str, jax.Array]  # {"lam": float32[]}
     statistics: dynamics.DynamicsStatistics
     coefficients: jax.Array  # float32[P, 4], fitted at the last episode start
-    episode: EpisodeArrays | None = None
     discrete_actions: bool = struct.field(pytree_node=False, default=False)
     episode_length: int = struct.field(pytree_node=False, default=0)  # T: rows of transitions
+
+
+@struct.dataclass
+class CCREpisodeState:
+    """CCR's state within an episode (:meth:`CCR.start_episode` to :meth:`CCR.end_episode`):
+    the state it carries between episodes and this episode's arrays."""
+
+    between: CCRState
+    episode: EpisodeArrays
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,30 +173,32 @@ class CCR:
             episode_length=env.episode_length,
         )
 
-    def start_episode(self, state: CCRState, env_state: EnvState) -> tuple[CCRState, jax.Array]:
+    def start_episode(self, state: CCRState, env_state: EnvState
+                      ) -> tuple[CCREpisodeState, jax.Array]:
         """Refits the model, empties the window; the observation gets zero scores."""
         obs = env_state.obs
         chex.assert_rank(obs, 3)
         num_robots, _, num_envs = obs.shape
         score = jnp.zeros((num_robots, num_envs), jnp.float32)
         rows = dynamics.num_features(self.config.degree) + dynamics.NUM_OUTPUTS + 1
-        state = state.replace(
-            coefficients=dynamics.fit(state.statistics, self.config.ridge),
+        episode_state = CCREpisodeState(
+            between=state.replace(coefficients=dynamics.fit(state.statistics, self.config.ridge)),
             episode=EpisodeArrays(
                 window=init_window(self.config.window, num_robots, num_envs), score=score,
                 transitions=jnp.zeros((state.episode_length, num_robots, rows, num_envs)),
             ),
         )
         shared = jnp.zeros((num_robots, num_robots - 1, num_envs), obs.dtype)
-        return state, jnp.concatenate([obs, shared], axis=1)
+        return episode_state, jnp.concatenate([obs, shared], axis=1)
 
     def step(
-        self, state: CCRState, env_state: EnvState, action: jax.Array, next_env_state: EnvState
-    ) -> tuple[CCRState, jax.Array, jax.Array, dict[str, jax.Array]]:
+        self, episode_state: CCREpisodeState, env_state: EnvState, action: jax.Array,
+        next_env_state: EnvState,
+    ) -> tuple[CCREpisodeState, jax.Array, jax.Array, dict[str, jax.Array]]:
         """One transition: score, model statistics, intrinsic reward, next observation."""
-        if state.episode is None:
-            raise ValueError("CCR.step needs an episode: call start_episode first")
-        config = self.config
+        if not isinstance(episode_state, CCREpisodeState):
+            raise ValueError("CCR.step needs an episode's state: call start_episode first")
+        config, state, episode = self.config, episode_state.between, episode_state.episode
         obs, next_obs = env_state.obs, next_env_state.obs
         chex.assert_rank(obs, 3)
         chex.assert_equal_shape([obs, next_obs])
@@ -209,7 +220,6 @@ class CCR:
         # s_hat - s = (p_t + dp_hat - p_{t+1}, v_hat - v_{t+1}) = y_hat - y, so the score
         # |s_hat - s|^2 is computed on the model's targets.
         raw_score = emergency_score(predicted, targets)
-        episode = state.episode
         transitions = jax.lax.dynamic_update_index_in_dim(
             episode.transitions,
             jnp.concatenate([features, targets, raw_score[:, None]], axis=1),
@@ -229,7 +239,7 @@ class CCR:
             SENSING_DANGER,
             jnp.where(jnp.abs(reward_in) > config.activation_threshold, ACTIVATED, STANDBY),
         ).astype(jnp.int32)
-        state = state.replace(
+        episode_state = episode_state.replace(
             episode=EpisodeArrays(window=window, score=next_score, transitions=transitions)
         )
         info = {
@@ -238,19 +248,17 @@ class CCR:
             "ccr_state": ccr_state,
         }
         return (
-            state,
+            episode_state,
             jnp.concatenate([next_obs, shared.astype(next_obs.dtype)], axis=1),
             next_env_state.reward + reward_in,
             info,
         )
 
-    def end_episode(self, state: CCRState) -> CCRState:
+    def end_episode(self, episode_state: CCREpisodeState) -> CCRState:
         """Adds the episode's transitions to the model's statistics (robust weights under the
         episode's coefficients) and drops the per-episode arrays: what remains (model,
         params) is independent of ``E``."""
-        episode = state.episode
-        if episode is None:
-            return state
+        state, episode = episode_state.between, episode_state.episode
         transitions = episode.transitions  # [T, N, P + 5, E]
         steps, num_robots, rows, num_envs = transitions.shape
         p = rows - dynamics.NUM_OUTPUTS - 1
@@ -263,4 +271,4 @@ class CCR:
             state.statistics, samples[:, :p], samples[:, p:p + dynamics.NUM_OUTPUTS], error,
             self.config.tolerance,
         )
-        return state.replace(statistics=statistics, episode=None)
+        return state.replace(statistics=statistics)
