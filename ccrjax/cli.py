@@ -194,6 +194,24 @@ def add_dataclass_options(
         )
 
 
+def add_field_option(
+    group: Any, option: str, owner: Any, field: str, convert: Callable[[str], Any] | None = None,
+    *, choices: Iterable[str] | None = None, shown: Any = None, dest: str | None = None,
+) -> None:
+    """Adds ``option`` for the field ``field`` of the dataclass instance ``owner``: its help
+    text from the field's comment (:func:`field_help`), its shown default ``owner``'s value
+    (or ``shown``). The option defaults to ``None``: left out, the value is not changed."""
+    default = getattr(owner, field) if shown is None else shown
+    shown_text = f"{default:,}" if isinstance(default, int) and not isinstance(
+        default, bool) else default
+    group.add_argument(
+        option, dest=dest or field, type=convert, default=None,
+        choices=tuple(choices) if choices is not None else None,
+        help=f"{field_help(type(owner)).get(field, field.replace('_', ' '))} "
+             f"(default: {shown_text})",
+    )
+
+
 def dataclass_overrides(args: argparse.Namespace, prefix: str) -> dict[str, Any]:
     """The fields given on the command line for options added with ``prefix``."""
     head = f"{prefix}__"

@@ -80,19 +80,19 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     config = TrainConfig(algo=args.algo, scenario=args.scenario, variant=args.variant,
                          total_env_steps=args.steps, eval_episodes=args.eval_episodes,
                          learning_starts=args.learning_starts)
-    config = dataclasses.replace(config, eval_every=config.total_env_steps // 10 or 1)
+    config = dataclasses.replace(config, eval_every=config.budget // 10 or 1)
     values = [0.0, *DEFAULT_VALUES[args.variant]] if args.values is None else args.values
     values = sorted({float(v) for v in values})
     seeds = [args.seed_offset + k for k in range(args.seeds)]
     name, grid_seeds, grid_values = search_grid(config, values, seeds)
     print(f"{PROG}: {args.algo} + {args.variant} on {args.scenario}: {len(values)} {name} x "
-          f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.total_env_steps:,} steps, "
+          f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.budget:,} steps, "
           "one program", file=sys.stderr, flush=True)
     runs = train_grid(config, grid_seeds, {name: grid_values},
                       log=lambda text: print(text, file=sys.stderr, flush=True))
     result = {
         "variant": args.variant, "parameter": name,
-        "scenario": args.scenario, "algo": args.algo, "env_steps": config.total_env_steps,
+        "scenario": args.scenario, "algo": args.algo, "env_steps": config.budget,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
         "command": " ".join([PROG, *sys.argv[1:]]), "commit": git_commit(),

@@ -67,9 +67,9 @@ from ccrjax.run.folder import (
 from ccrjax.run.policy import export_policy
 from ccrjax.run.spec import RunSpec
 from ccrjax.training import DEFAULT_BUDGET, TrainConfig, make_train
-from ccrjax.training.config import _nested_config_types
 from ccrjax.training.program import NonFinite, first_nonfinite
-from ccrjax.transforms import VARIANTS
+from ccrjax.transforms import VARIANTS, Pessimistic
+from ccrjax.transforms.ccr import CCR, CCRConfig
 from ccrjax.viz.episode_pictures import (
     PICTURE_KEY,
     record_trained_episode,
@@ -79,6 +79,8 @@ from ccrjax.viz.episode_pictures import (
 from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 
 PROG = "python -m ccrjax.train"
+# A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
+DEFAULT_TRAIN = TrainConfig(scenario="hidden_obstacle", variant="ccr")
 NONFINITE = 1
 
 
@@ -92,49 +94,38 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Every option left out keeps its default; with --resume, the run's own "
         "configuration (config.json) is used and options that contradict it are refused.",
     )
+    # Every option's help and default come from the dataclass field it sets.
     run = parser.add_argument_group("the run")
-    run.add_argument("--scenario", choices=tuple(SCENARIOS), default=None,
-                     help="emergency scenario (default: hidden_obstacle)")
-    run.add_argument("--algo", choices=ALGOS, default=None,
-                     help="learner (default: maddpg)")
-    run.add_argument("--variant", choices=VARIANTS, default=None,
-                     help="plain learner, the pessimistic baseline, or CCR "
-                     "(default: ccr, as make train)")
-    run.add_argument("--lam", type=cli.non_negative_float, default=None,
-                     help="CCR: weight lambda of the intrinsic reward (default: 30)")
-    run.add_argument("--penalty", type=cli.non_negative_float, default=None,
-                     help="pessimistic: reward lowered on every dangerous step (default: 1.0)")
-    run.add_argument("--seeds", type=cli.int_in(1, 1024), default=None,
-                     help="number of seeds, trained at once in one program (default: 1)")
-    run.add_argument("--seed-offset", type=cli.seed_int, default=None,
-                     help="first seed; the seeds are offset .. offset + seeds - 1 (default: 0)")
+    base, spec = DEFAULT_TRAIN, RunSpec(train=DEFAULT_TRAIN)
     budget = ", ".join(f"{v:,} for {k}" for k, v in DEFAULT_BUDGET.items())
-    run.add_argument("--steps", type=cli.positive_int, default=None,
-                     help=f"environment steps per seed (default: {budget})")
-    run.add_argument("--num-envs", type=cli.int_in(1, 65536), default=None,
-                     help="training environments per seed (default: 8)")
-    run.add_argument("--robots", type=cli.int_in(2, 64), default=None,
-                     help="team size (default: 5)")
-    run.add_argument("--episode-length", type=cli.int_in(1, 10_000), default=None,
-                     help="steps per episode (default: 50)")
-    run.add_argument("--eval-every", type=cli.positive_int, default=None,
-                     help="environment steps per seed between evaluations (default: 20000)")
-    run.add_argument("--eval-episodes", type=cli.int_in(1, 65536), default=None,
-                     help="fresh episodes per evaluation and seed (default: 64)")
-    run.add_argument("--learning-starts", type=cli.non_negative_int, default=None,
-                     help="transitions stored before updates begin "
-                     "(default: batch size x episode length)")
+    for option, owner, field, convert, extra in (
+        ("--scenario", base, "scenario", None, {"choices": SCENARIOS}),
+        ("--algo", base, "algo", None, {"choices": ALGOS}),
+        ("--variant", base, "variant", None, {"choices": VARIANTS}),
+        ("--lam", CCRConfig(), "lam", cli.non_negative_float, {}),
+        ("--penalty", Pessimistic(), "penalty", cli.non_negative_float, {}),
+        ("--seeds", spec, "seeds", cli.int_in(1, 1024), {}),
+        ("--seed-offset", spec, "seed_offset", cli.seed_int, {}),
+        ("--steps", base, "total_env_steps", cli.positive_int, {"shown": budget,
+                                                                 "dest": "steps"}),
+        ("--num-envs", base, "num_envs", cli.int_in(1, 65536), {}),
+        ("--robots", base, "num_robots", cli.int_in(2, 64), {"dest": "robots"}),
+        ("--episode-length", base, "episode_length", cli.int_in(1, 10_000), {}),
+        ("--eval-every", base, "eval_every", cli.positive_int, {}),
+        ("--eval-episodes", base, "eval_episodes", cli.int_in(1, 65536), {}),
+        ("--learning-starts", base, "learning_starts", cli.non_negative_int, {}),
+    ):
+        cli.add_field_option(run, option, owner, field, convert, **extra)
 
     folder = parser.add_argument_group("the run folder")
     folder.add_argument("--out", type=Path, default=None,
                         help="run folder (default: runs/<scenario>-<algo>-<variant>-<time>)")
     folder.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its latest checkpoint")
-    folder.add_argument("--checkpoint-every", type=cli.positive_int, default=None,
-                        help="environment steps per seed between checkpoints, rounded to "
-                        "whole evaluation intervals (default: 100000)")
-    folder.add_argument("--keep-checkpoints", type=cli.int_in(1, 1000), default=None,
-                        help="how many of the latest checkpoints to keep (default: 2)")
+    cli.add_field_option(folder, "--checkpoint-every", spec, "checkpoint_every",
+                         cli.positive_int)
+    cli.add_field_option(folder, "--keep-checkpoints", spec, "keep_checkpoints",
+                         cli.int_in(1, 1000))
     folder.add_argument("--keep-buffer", action="store_true",
                         help="keep the replay buffer in a finished run's last checkpoint (it "
                         "is dropped by default: only extending the run exactly needs it)")
@@ -149,41 +140,33 @@ def build_parser() -> argparse.ArgumentParser:
     cli.add_dataclass_options(parser, DDPGConfig, "ddpg", "IDDPG / MADDPG hyperparameters",
                               exclude=("centralised_critic",))
     cli.add_dataclass_options(parser, MAACConfig, "maac", "MAAC hyperparameters")
-    ccr_config = _ccr_config_type()
-    if ccr_config is not None:
-        cli.add_dataclass_options(parser, ccr_config, "ccr", "CCR parameters", exclude=("lam",))
+    cli.add_dataclass_options(parser, CCRConfig, "ccr", "CCR parameters", exclude=("lam",))
     return parser
-
-
-def _ccr_config_type() -> type | None:
-
-    return _nested_config_types().get("ccr")
 
 
 def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     """The run the command line asks for: ``base`` (a resumed run's, or the defaults) with
-    every option given on top. Raises ``ValueError`` for values the configuration refuses."""
+    every option given on top, every value the run uses written out (the learner's and the
+    transform's parameters, the budget) so that ``config.json`` shows them. Raises
+    ``ValueError`` for values the configuration refuses."""
 
-    # A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
-    train = base.train if base is not None else TrainConfig(scenario="hidden_obstacle",
-                                                            variant="ccr")
+    train = base.train if base is not None else DEFAULT_TRAIN
     fields: dict[str, Any] = {}
     for option, field in (("scenario", "scenario"), ("algo", "algo"), ("variant", "variant"),
-                          ("penalty", "penalty"), ("num_envs", "num_envs"),
-                          ("robots", "num_robots"), ("episode_length", "episode_length"),
-                          ("eval_every", "eval_every"), ("eval_episodes", "eval_episodes"),
-                          ("learning_starts", "learning_starts")):
+                          ("num_envs", "num_envs"), ("robots", "num_robots"),
+                          ("episode_length", "episode_length"), ("eval_every", "eval_every"),
+                          ("eval_episodes", "eval_episodes"),
+                          ("learning_starts", "learning_starts"), ("steps", "total_env_steps")):
         value = getattr(args, option)
         if value is not None:
             fields[field] = value
     algo = fields.get("algo", train.algo)
     variant = fields.get("variant", train.variant)
-    if args.steps is not None:
-        fields["total_env_steps"] = args.steps
-    elif "algo" in fields and fields["algo"] != train.algo:
-        fields["total_env_steps"] = None  # the new learner's default budget
-    if "algo" in fields and fields["algo"] != train.algo:
-        fields["maac"] = None
+    if algo != train.algo:  # another learner: its own defaults and budget
+        fields["learner"] = None
+        fields.setdefault("total_env_steps", None)
+    if variant != train.variant:
+        fields["transform"] = None
 
     ddpg, maac = cli.dataclass_overrides(args, "ddpg"), cli.dataclass_overrides(args, "maac")
     if ddpg and algo == "maac":
@@ -198,15 +181,18 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     if ccr and variant != "ccr":
         given = "--lam" if args.lam is not None else "--ccr-* options"
         raise UsageError(f"{given} apply to --variant ccr, not {variant}")
-    if ddpg:
-        fields["ddpg"] = dataclasses.replace(train.ddpg, **ddpg)
-    if maac:
-
-        current = fields.get("maac", train.maac) or MAACConfig()
-        fields["maac"] = dataclasses.replace(current, **maac)
-    if ccr:
-        fields["ccr"] = dataclasses.replace(train.ccr, **ccr)
     train = dataclasses.replace(train, **fields)
+    if ddpg or maac:
+        train = dataclasses.replace(train, learner=dataclasses.replace(
+            train.learner_config, **(ddpg or maac)))
+    if args.penalty is not None:
+        train = dataclasses.replace(train, transform=Pessimistic(penalty=args.penalty))
+    if ccr:
+        train = dataclasses.replace(train, transform=CCR(dataclasses.replace(
+            train.transform_config.config, **ccr)))
+    train = dataclasses.replace(train, learner=train.learner_config,
+                                transform=train.transform_config,
+                                total_env_steps=train.budget)
 
     run_fields = {}
     for option in ("seeds", "seed_offset", "checkpoint_every", "keep_checkpoints"):

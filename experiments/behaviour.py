@@ -59,9 +59,9 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
     for variant in ("plain", "ccr"):
         config = TrainConfig(algo="maddpg", scenario="hidden_obstacle", variant=variant,
                              total_env_steps=steps)
-        config = dataclasses.replace(config, eval_every=config.total_env_steps)
+        config = dataclasses.replace(config, eval_every=config.budget)
         log(f"training MADDPG {variant} on hidden_obstacle: {len(seeds)} seed(s) x "
-            f"{config.total_env_steps:,} steps ...")
+            f"{config.budget:,} steps ...")
         params = {"lam": [lam] * len(seeds)} if variant == "ccr" else None
         runs = train_grid(config, seeds, params, record_episodes=episodes, record_key=key,
                           log=log)

@@ -42,11 +42,11 @@ RULE = SelectionRule(objective="danger_frequency", constraint="success_rate", to
 def quick(config: TrainConfig) -> TrainConfig:
     """``config`` at a tiny size (2 environments of 10 steps, 8-unit networks, learning from
     the 40th transition): the pipeline of an experiment in minutes, not its learning."""
-    return dataclasses.replace(
-        config, num_envs=2, episode_length=10, learning_starts=40,
-        ddpg=DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,), update_every=20),
-        maac=MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8, attention_heads=2,
-                        update_every=20, gradient_steps=1))
+    learner = (MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8, attention_heads=2,
+                          update_every=20, gradient_steps=1) if config.algo == "maac" else
+               DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,), update_every=20))
+    return dataclasses.replace(config, num_envs=2, episode_length=10, learning_starts=40,
+                               learner=learner)
 
 
 QUICK_STEPS = 400

@@ -28,7 +28,7 @@ def run(algo: str, seed: int, steps: int | None, eval_episodes: int) -> dict:
     if steps is not None:
         config = dataclasses.replace(config, total_env_steps=steps)
     # One evaluation at the end is all this check needs.
-    config = dataclasses.replace(config, eval_every=config.total_env_steps)
+    config = dataclasses.replace(config, eval_every=config.budget)
     program = make_train(config)
     start = time.perf_counter()
     state, history = jax.jit(program.train)(jax.random.PRNGKey(seed))

@@ -94,6 +94,8 @@ from ccrjax.run.stats import (
 )
 from ccrjax.training import ALGOS, TrainConfig, make_env
 from ccrjax.training.grid import GridRuns, GridTraining
+from ccrjax.transforms import Pessimistic
+from ccrjax.transforms.ccr import CCR, CCRConfig
 from ccrjax.viz.analysis import arrival_analysis, followers_closest
 from ccrjax.viz.plots import Curves, draw_curves, draw_obstacle_distances, draw_progress_matched
 from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
@@ -130,10 +132,11 @@ class Settings:
         base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
         if self.quick:
             base = protocol.quick(base)
+        transform = {"plain": None, "pessimistic": Pessimistic(penalty=self.penalty),
+                     "ccr": CCR(CCRConfig(lam=self.lam))}[variant]
         return dataclasses.replace(
             base, total_env_steps=self.budget(algo), eval_every=self.eval_every,
-            eval_episodes=self.eval_episodes, penalty=self.penalty,
-            ccr=dataclasses.replace(base.ccr, lam=self.lam))
+            eval_episodes=self.eval_episodes, transform=transform)
 
 
 QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,

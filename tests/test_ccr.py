@@ -446,12 +446,14 @@ def test_bad_ccr_config_is_refused(changes, field):
 
 
 def test_ccr_config_in_training_config_and_vmapped_lambdas():
-    config = TrainConfig(variant="ccr", ccr=CCRConfig(window=2))
+    config = TrainConfig(variant="ccr", transform=CCR(CCRConfig(window=2)))
     program = make_train(config)
     assert isinstance(program.transform, CCR) and program.transform.config.window == 2
     assert program.obs_size == program.env.observation_size + config.num_robots - 1
-    with pytest.raises(ValueError, match="ccr"):
-        TrainConfig(variant="ccr", ccr={"lam": 1.0})
+    with pytest.raises(ValueError, match="transform of variant 'ccr' must be a CCR"):
+        TrainConfig(variant="ccr", transform={"lam": 1.0})
+    with pytest.raises(ValueError, match="learner of algo 'maddpg' must be a DDPGConfig"):
+        TrainConfig(variant="ccr", learner=CCRConfig())
     env = program.env
     lams = jnp.asarray([0.0, 10.0, 30.0])
     states = jax.vmap(lambda lam: program.transform.init(env, {"lam": lam}))(lams)
@@ -474,7 +476,7 @@ TINY_CCR = TrainConfig(
     eval_every=20,
     eval_episodes=3,
     learning_starts=20,
-    ddpg=DDPGConfig(batch_size=16, actor_hidden=(8,), critic_hidden=(8,), update_every=10),
+    learner=DDPGConfig(batch_size=16, actor_hidden=(8,), critic_hidden=(8,), update_every=10),
 )
 
 

@@ -28,7 +28,7 @@ SCRIPT = textwrap.dedent(
     config = TrainConfig(
         algo="maddpg", scenario="hidden_obstacle", variant="ccr", num_envs=2, episode_length=10,
         total_env_steps=160, eval_every=80, eval_episodes=3, learning_starts=40,
-        ddpg=DDPGConfig(batch_size=16, actor_hidden=(8,), critic_hidden=(8,), update_every=10),
+        learner=DDPGConfig(batch_size=16, actor_hidden=(8,), critic_hidden=(8,), update_every=10),
     )
     results = {}
     for name, devices in (("two", jax.devices()), ("one", jax.devices()[:1])):

@@ -49,7 +49,7 @@ def test_ddpg_family_improves_its_return(algo):
         eval_every=40_000,
         eval_episodes=16,
         learning_starts=2_000,
-        ddpg=SMALL_DDPG,
+        learner=SMALL_DDPG,
     )
     _, history = train_seeds(config)
     initial, final = history["return"][:, 0], history["return"][:, -1]

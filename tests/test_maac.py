@@ -319,10 +319,10 @@ def test_training_normalises_the_rewards_the_update_sees():
     config = TrainConfig(
         algo="maac", scenario="nominal", num_robots=3, num_envs=4, episode_length=10,
         total_env_steps=120, eval_every=40, eval_episodes=2, learning_starts=0,
-        maac=dataclasses.replace(SMALL, batch_size=64),
+        learner=dataclasses.replace(SMALL, batch_size=64),
     )
     program = make_train(config)
-    program.learner = RewardSpy(config.maac)
+    program.learner = RewardSpy(config.learner_config)
     state = program.init(jax.random.PRNGKey(0))
     state, metrics = jax.jit(program.run, static_argnums=1)(state, 3)
     assert int(state.updates) == 3 * config.updates_per_iteration
@@ -417,7 +417,7 @@ LEARNING = TrainConfig(
     eval_every=3000,
     eval_episodes=16,
     learning_starts=1000,
-    maac=MAACConfig(
+    learner=MAACConfig(
         policy_hidden=(32, 32),
         critic_hidden=32,
         attention_heads=2,

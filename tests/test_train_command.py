@@ -139,8 +139,8 @@ def test_a_finished_run_leaves_everything_in_its_folder(finished_run):
     config = json.loads((out / "config.json").read_text())
     for key in ("ccrjax_version", "git_commit", "jax_version", "devices", "run"):
         assert key in config
-    assert config["run"]["train"]["penalty"] == 1.0
-    assert config["run"]["train"]["ddpg"]["critic_hidden"] == [16]
+    assert config["run"]["train"]["transform"]["penalty"] == 1.0
+    assert config["run"]["train"]["learner"]["critic_hidden"] == [16]
     rows = read_metrics(out / "metrics.csv")
     assert {r["seed"] for r in rows} == {3, 4}
     assert sorted({r["env_steps"] for r in rows}) == list(range(0, FINAL_STEPS + 1, 200))
@@ -450,7 +450,7 @@ def test_a_checkpoint_of_another_configuration_is_refused(finished_run, tmp_path
     shutil.copytree(finished_run, out)
     folder = RunFolder(out)
     record = folder.read_config()
-    record["run"]["train"]["penalty"] = 2.0  # same shapes, another run
+    record["run"]["train"]["transform"]["penalty"] = 2.0  # same shapes, another run
     record["fingerprint"] = fingerprint(record["run"])
     folder.write_config(record)
     status, _, err = run_main(train, ["--out", out, "--resume"], capsys)

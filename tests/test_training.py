@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,14 @@ import pytest
 
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.envs.env import CCREnv
-from ccrjax.training import NonFiniteTraining, TrainConfig, make_train
+from ccrjax.training import (
+    DEFAULT_BUDGET,
+    NonFiniteTraining,
+    TrainConfig,
+    config_from_dict,
+    config_to_dict,
+    make_train,
+)
 from ccrjax.training.acting import episode_metrics, run_episode
 from ccrjax.training.program import NonFinite, first_nonfinite
 from ccrjax.transforms import Pessimistic, Plain
@@ -25,7 +33,7 @@ TINY = TrainConfig(
     eval_every=200,
     eval_episodes=4,
     learning_starts=80,
-    ddpg=DDPGConfig(batch_size=32, actor_hidden=(16,), critic_hidden=(16,), update_every=10),
+    learner=DDPGConfig(batch_size=32, actor_hidden=(16,), critic_hidden=(16,), update_every=10),
 )
 
 
@@ -192,8 +200,9 @@ def test_a_run_that_turns_non_finite_is_stopped_with_its_iteration(tiny_program)
         ({"variant": "optimistic"}, "variant"),
         ({"num_envs": 0}, "num_envs"),
         ({"total_env_steps": -5}, "total_env_steps"),
-        ({"penalty": -1.0}, "penalty"),
-        ({"penalty": float("nan")}, "penalty"),
+        ({"learner": "big"}, "learner"),
+        ({"transform": "soft"}, "transform"),
+        ({"scenario_params": {"max_force": -1.0}}, "max_force"),
         ({"num_robots": 1}, "num_robots"),
         ({"episode_length": 0}, "episode_length"),
     ],
@@ -201,6 +210,25 @@ def test_a_run_that_turns_non_finite_is_stopped_with_its_iteration(tiny_program)
 def test_bad_config_is_refused_before_anything_compiles(changes, field):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(TINY, **changes)
+
+
+@pytest.mark.parametrize("penalty", [-1.0, float("nan")])
+def test_a_bad_penalty_is_refused_by_the_pessimistic_transform(penalty):
+    with pytest.raises(ValueError, match="penalty"):
+        Pessimistic(penalty=penalty)
+
+
+def test_a_config_is_not_rewritten_and_says_what_it_uses():
+    config = TrainConfig(algo="iddpg", variant="pessimistic")
+    assert (config.total_env_steps, config.learner, config.transform) == (None, None, None)
+    assert config.budget == DEFAULT_BUDGET["iddpg"]
+    assert config.learner_config == DDPGConfig(centralised_critic=False)
+    assert config.transform_config == Pessimistic()
+    again = config_from_dict(config_to_dict(config))
+    assert again == config
+    explicit = dataclasses.replace(config, transform=Pessimistic(penalty=3.0),
+                                   learner=DDPGConfig(batch_size=64))
+    assert config_from_dict(json.loads(json.dumps(config_to_dict(explicit)))) == explicit
 
 
 def test_a_budget_that_ends_before_learning_starts_is_refused():

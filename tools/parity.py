@@ -42,10 +42,11 @@ def fingerprints() -> dict[str, dict[str, str]]:
                 algo=algo, scenario="hidden_obstacle", variant=variant, num_envs=2,
                 episode_length=10, total_env_steps=400, eval_every=200, eval_episodes=4,
                 learning_starts=40,
-                ddpg=DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,),
-                                update_every=20),
-                maac=MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8,
-                                attention_heads=2, update_every=20, gradient_steps=1))
+                learner=MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8,
+                                   attention_heads=2, update_every=20, gradient_steps=1)
+                if algo == "maac" else
+                DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,),
+                           update_every=20))
             program = make_train(config)
             keys = jnp.stack([jax.random.PRNGKey(s) for s in (0, 1)])
             state, history = jax.jit(jax.vmap(program.train))(keys)

@@ -70,6 +70,17 @@ with contextlib.redirect_stdout(io.StringIO()):
     from brax.envs.base import Env, State
 
 MIN_ROBOTS, MAX_ROBOTS = 2, 64
+
+
+def check_team(scenario: Scenario, num_robots: int, episode_length: int,
+               robot_radius: float = 0.05, layout: Layout | None = None) -> None:
+    """Refuses a team and episode the environment cannot run (the checks that need no
+    environment: a training configuration makes them when it is built)."""
+    check_int("", "num_robots", num_robots, MIN_ROBOTS, MAX_ROBOTS)
+    check_int("", "episode_length", episode_length, 1)
+    layout = layout or Layout()
+    layout.check_team(num_robots, robot_radius)
+    scenario.check_layout(layout, robot_radius)
 NUM_DISCRETE_ACTIONS = 5
 
 
@@ -126,9 +137,7 @@ class CCREnv(Env):
             raise ValueError(
                 f"scenario must be one of {sorted(SCENARIOS)} or a Scenario, got {scenario!r}"
             )
-        check_int("", "num_robots", num_robots, MIN_ROBOTS, MAX_ROBOTS)
         check_int("", "num_envs", num_envs, 1)
-        check_int("", "episode_length", episode_length, 1)
         check_number("", "robot_radius", robot_radius, positive=True)
         check_number("", "sensitivity", sensitivity, positive=True)
         if not isinstance(discrete_actions, bool):
@@ -137,6 +146,7 @@ class CCREnv(Env):
             raise ValueError(f"layout must be a ccrjax.envs.scenarios.Layout, got {layout!r}")
         if physics is not None and not isinstance(physics, PhysicsParams):
             raise ValueError(f"physics must be a ccrjax.envs.world.PhysicsParams, got {physics!r}")
+        check_team(self.scenario, num_robots, episode_length, float(robot_radius), layout)
         self.num_robots = int(num_robots)
         self.num_envs = int(num_envs)
         self.episode_length = int(episode_length)
@@ -145,8 +155,6 @@ class CCREnv(Env):
         self.discrete_actions = discrete_actions
         self.layout = layout or Layout()
         self.physics = physics or PhysicsParams()
-        self.layout.check_team(self.num_robots, self.robot_radius)
-        self.scenario.check_layout(self.layout, self.robot_radius)
         # For robot i, the indices of the other robots in increasing order: [N, N - 1].
         self._others = np.array(
             [[j for j in range(self.num_robots) if j != i] for i in range(self.num_robots)],

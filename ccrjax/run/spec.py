@@ -16,10 +16,11 @@ class RunSpec:
     """A training run: the per-seed configuration and how the run is driven."""
 
     train: TrainConfig
-    seeds: int = 1
-    seed_offset: int = 0
-    checkpoint_every: int = 100_000  # environment steps per seed between checkpoints
-    keep_checkpoints: int = 2
+    seeds: int = 1  # number of seeds, trained at once in one program
+    seed_offset: int = 0  # first seed: the seeds are offset, offset + 1, ..., offset + seeds - 1
+    # environment steps per seed between checkpoints, rounded to whole evaluation intervals
+    checkpoint_every: int = 100_000
+    keep_checkpoints: int = 2  # how many of the latest checkpoints to keep
 
     def __post_init__(self) -> None:
         for name, low in (("seeds", 1), ("seed_offset", 0), ("checkpoint_every", 1),

@@ -1,8 +1,8 @@
 """A training run's configuration (:class:`TrainConfig`) and the pieces it builds.
 
 :class:`TrainConfig` holds everything that defines the training run of one seed; it is
-validated once, when built. :func:`make_env`, :func:`make_learner` and
-:func:`make_transform` build the environment, the learner and the reward transform it
+validated once, when built, without building anything. :func:`make_env`, :func:`make_learner`
+and :func:`make_transform` build the environment, the learner and the reward transform it
 names; :func:`config_to_dict` and :func:`config_from_dict` write and read it as JSON.
 """
 
@@ -17,9 +17,9 @@ from ccrjax.agents.ddpg import DDPG, DDPGConfig
 from ccrjax.agents.maac import MAAC, MAACConfig
 from ccrjax.agents.replay import replay_capacity
 from ccrjax.agents.types import Learner
-from ccrjax.checks import check_positive_int
-from ccrjax.envs.env import CCREnv
-from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.checks import check_int, check_positive_int
+from ccrjax.envs.env import CCREnv, check_team
+from ccrjax.envs.scenarios import SCENARIOS, make_scenario
 from ccrjax.transforms import VARIANTS, Pessimistic, Plain, Transform
 from ccrjax.transforms.ccr import CCR, CCRConfig
 
@@ -31,31 +31,42 @@ LEARNING_STARTS = 25_600
 DEFAULT_BUDGET = {"iddpg": 400_000, "maddpg": 400_000, "maac": 200_000}
 
 
+# The transform of each variant, with its parameters: its type and its defaults.
+TRANSFORM_TYPES: dict[str, type] = {"plain": Plain, "pessimistic": Pessimistic, "ccr": CCR}
+LEARNER_CONFIG_TYPES: dict[str, type] = {"iddpg": DDPGConfig, "maddpg": DDPGConfig,
+                                         "maac": MAACConfig}
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Everything that defines a training run of one seed.
 
-    Sizes the paper leaves open are chosen here and documented in the README:
-    8 training environments per seed, episodes of 25 steps (the MPE's), and the environment-step
-    budget ``total_env_steps`` per seed (every environment step of every training
-    environment counts).
+    ``algo`` and ``variant`` name the learner and the transform; ``learner`` and
+    ``transform`` hold their parameters (``None``: that learner's or variant's defaults,
+    :attr:`learner_config` and :attr:`transform_config`). Sizes the paper leaves open are
+    chosen here and documented in the README: 8 training environments per seed, episodes of
+    25 steps (the MPE's), and the environment-step budget per seed (:attr:`budget`; every
+    environment step of every training environment counts). Validated when built, without
+    building an environment; nothing is rewritten.
     """
 
-    algo: str = "maddpg"
-    scenario: str = "nominal"
-    variant: str = "plain"
-    penalty: float = 1.0  # pessimistic baseline: reward lowered on danger steps
-    ccr: CCRConfig = CCRConfig()  # CCR's hyperparameters (variant "ccr")
-    num_robots: int = 5
-    episode_length: int = 25
-    num_envs: int = 8
-    total_env_steps: int | None = None  # None: DEFAULT_BUDGET[algo]
-    eval_every: int = 20_000  # environment steps between evaluations
-    eval_episodes: int = 64
+    algo: str = "maddpg"  # learner: iddpg, maddpg or maac
+    scenario: str = "nominal"  # emergency scenario
+    variant: str = "plain"  # plain learner, pessimistic baseline, or ccr
+    # The variant's transform and its parameters: Plain(), Pessimistic(penalty) or
+    # CCR(CCRConfig); None: the variant's defaults.
+    transform: Plain | Pessimistic | CCR | None = None
+    # The learner's hyperparameters: a DDPGConfig (iddpg, maddpg) or a MAACConfig (maac);
+    # None: the learner's defaults.
+    learner: DDPGConfig | MAACConfig | None = None
+    num_robots: int = 5  # team size
+    episode_length: int = 25  # steps per episode
+    num_envs: int = 8  # training environments per seed
+    total_env_steps: int | None = None  # environment steps per seed; None: DEFAULT_BUDGET
+    eval_every: int = 20_000  # environment steps per seed between evaluations
+    eval_episodes: int = 64  # fresh episodes per evaluation and seed
     learning_starts: int = LEARNING_STARTS  # transitions per seed before the first update
     scenario_params: dict[str, Any] = dataclasses.field(default_factory=dict)
-    ddpg: DDPGConfig = DDPGConfig()
-    maac: Any = None  # MAACConfig; None = its defaults
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -64,36 +75,47 @@ class TrainConfig:
             raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {self.scenario!r}")
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
-        if self.total_env_steps is None and self.algo in ALGOS:
-            object.__setattr__(self, "total_env_steps", DEFAULT_BUDGET[self.algo])
-        for name in ("num_envs", "total_env_steps", "eval_every", "eval_episodes"):
+        transform_type = TRANSFORM_TYPES[self.variant]
+        if self.transform is not None and type(self.transform) is not transform_type:
+            raise ValueError(f"TrainConfig.transform of variant {self.variant!r} must be a "
+                             f"{transform_type.__name__} or None, got {self.transform!r}")
+        learner_type = LEARNER_CONFIG_TYPES[self.algo]
+        if self.learner is not None and type(self.learner) is not learner_type:
+            raise ValueError(f"TrainConfig.learner of algo {self.algo!r} must be a "
+                             f"{learner_type.__name__} or None, got {self.learner!r}")
+        if self.total_env_steps is not None:
+            check_positive_int("TrainConfig", "total_env_steps", self.total_env_steps)
+        for name in ("num_envs", "eval_every", "eval_episodes"):
             check_positive_int("TrainConfig", name, getattr(self, name))
-        if isinstance(self.learning_starts, bool) or not isinstance(
-            self.learning_starts, int
-        ) or self.learning_starts < 0:
+        check_int("TrainConfig", "learning_starts", self.learning_starts, 0)
+        scenario = make_scenario(self.scenario, **self.scenario_params)  # checks its params
+        check_team(scenario, self.num_robots, self.episode_length)
+        if self.budget < self.min_total_env_steps:
             raise ValueError(
-                f"TrainConfig.learning_starts must be an integer >= 0, "
-                f"got {self.learning_starts!r}"
-            )
-        if self.maac is None and self.algo == "maac":
-            object.__setattr__(self, "maac", MAACConfig())
-        Pessimistic(penalty=self.penalty)  # validates the penalty whatever the variant
-        if not isinstance(self.ccr, CCRConfig):
-            raise ValueError(f"TrainConfig.ccr must be a CCRConfig, got {self.ccr!r}")
-        # Building the pieces validates the rest (env sizes, penalty, learner fields).
-        make_transform(self)
-        make_env(self, self.num_envs)
-        if self.total_env_steps < self.min_total_env_steps:
-            raise ValueError(
-                f"total_env_steps (--steps) {self.total_env_steps:,} ends before learning "
+                f"total_env_steps (--steps) {self.budget:,} ends before learning "
                 f"starts: at least {self.min_total_env_steps:,} environment steps are needed "
                 f"(learning_starts {self.learning_starts:,} transitions, collected "
                 f"{self.steps_per_iteration:,} per iteration)"
             )
 
     @property
-    def learner_config(self) -> Any:
-        return self.maac if self.algo == "maac" else self.ddpg
+    def budget(self) -> int:
+        """Environment steps per seed: ``total_env_steps``, or the learner's default."""
+        return DEFAULT_BUDGET[self.algo] if self.total_env_steps is None else self.total_env_steps
+
+    @property
+    def transform_config(self) -> Plain | Pessimistic | CCR:
+        """The transform the run uses: ``transform``, or the variant's defaults."""
+        return TRANSFORM_TYPES[self.variant]() if self.transform is None else self.transform
+
+    @property
+    def learner_config(self) -> DDPGConfig | MAACConfig:
+        """The learner's hyperparameters: ``learner``, or the learner's defaults (for
+        iddpg and maddpg, the critic centralised or not as the name says)."""
+        config = LEARNER_CONFIG_TYPES[self.algo]() if self.learner is None else self.learner
+        if self.algo == "maac":
+            return config
+        return dataclasses.replace(config, centralised_critic=self.algo == "maddpg")
 
     @property
     def steps_per_iteration(self) -> int:
@@ -106,9 +128,9 @@ class TrainConfig:
 
     @property
     def num_iterations(self) -> int:
-        """Iterations of the run: ``total_env_steps`` rounded up to whole evaluation intervals
+        """Iterations of the run: :attr:`budget` rounded up to whole evaluation intervals
         (one compiled chunk of iterations serves the whole run)."""
-        iterations = math.ceil(self.total_env_steps / self.steps_per_iteration)
+        iterations = math.ceil(self.budget / self.steps_per_iteration)
         return self.iterations_per_eval * math.ceil(iterations / self.iterations_per_eval)
 
     @property
@@ -118,7 +140,7 @@ class TrainConfig:
 
     @property
     def total_env_steps_run(self) -> int:
-        """The budget that runs: ``total_env_steps`` in whole evaluation intervals."""
+        """The budget that runs: :attr:`budget` in whole evaluation intervals."""
         return self.num_iterations * self.steps_per_iteration
 
     def schedule(self) -> dict[str, Any]:
@@ -128,11 +150,11 @@ class TrainConfig:
             notes.append(f"--eval-every {self.eval_every:,} runs as {self.eval_every_run:,} "
                          f"environment steps: whole iterations of {self.steps_per_iteration:,} "
                          "(num_envs x episode_length)")
-        if self.total_env_steps_run != self.total_env_steps:
-            notes.append(f"--steps {self.total_env_steps:,} runs as "
+        if self.total_env_steps_run != self.budget:
+            notes.append(f"--steps {self.budget:,} runs as "
                          f"{self.total_env_steps_run:,} environment steps per seed: whole "
                          f"evaluation intervals of {self.eval_every_run:,}")
-        return {"requested": {"total_env_steps": self.total_env_steps,
+        return {"requested": {"total_env_steps": self.budget,
                               "eval_every": self.eval_every},
                 "ran": {"total_env_steps": self.total_env_steps_run,
                         "eval_every": self.eval_every_run},
@@ -166,20 +188,9 @@ class TrainConfig:
         return first * self.steps_per_iteration
 
 
-def _nested_config_types() -> dict[str, type]:
-    """The fields of :class:`TrainConfig` that hold a configuration dataclass, and its type."""
-    types: dict[str, type] = {"maac": MAACConfig}
-    for field in dataclasses.fields(TrainConfig):
-        default = field.default
-        if default is dataclasses.MISSING and field.default_factory is not dataclasses.MISSING:
-            default = field.default_factory()
-        if dataclasses.is_dataclass(default):
-            types[field.name] = type(default)
-    return types
-
-
 def config_to_dict(config: TrainConfig) -> dict[str, Any]:
-    """Every field of ``config``, nested configurations included, as JSON-ready values."""
+    """Every field of ``config``, nested configurations included, as JSON-ready values
+    (``transform`` and ``learner`` as the fields of their dataclass, or ``None``)."""
     return dataclasses.asdict(config)
 
 
@@ -191,19 +202,24 @@ def _tuples(value: Any) -> Any:
     return value
 
 
+def _transform_from_dict(variant: str, data: dict[str, Any]) -> Plain | Pessimistic | CCR:
+    if variant == "ccr":
+        return CCR(CCRConfig(**data.get("config", {})))
+    return TRANSFORM_TYPES[variant](**data)
+
+
 def config_from_dict(data: dict[str, Any]) -> TrainConfig:
     """The inverse of :func:`config_to_dict` (JSON lists become tuples); validates."""
-    nested = _nested_config_types()
     names = {field.name for field in dataclasses.fields(TrainConfig)}
     unknown = sorted(set(data) - names)
     if unknown:
         raise ValueError(f"unknown TrainConfig field(s) {unknown}")
-    values = {}
-    for name, value in data.items():
-        value = _tuples(value)
-        if name in nested and isinstance(value, dict):
-            value = nested[name](**value)
-        values[name] = value
+    values = {name: _tuples(value) for name, value in data.items()}
+    variant, algo = values.get("variant", "plain"), values.get("algo", "maddpg")
+    if isinstance(values.get("transform"), dict) and variant in TRANSFORM_TYPES:
+        values["transform"] = _transform_from_dict(variant, values["transform"])
+    if isinstance(values.get("learner"), dict) and algo in LEARNER_CONFIG_TYPES:
+        values["learner"] = LEARNER_CONFIG_TYPES[algo](**values["learner"])
     return TrainConfig(**values)
 
 
@@ -219,16 +235,9 @@ def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
 
 
 def make_learner(config: TrainConfig) -> Learner:
-    if config.algo == "iddpg":
-        return DDPG(dataclasses.replace(config.ddpg, centralised_critic=False))
-    if config.algo == "maddpg":
-        return DDPG(dataclasses.replace(config.ddpg, centralised_critic=True))
-    return MAAC(config.maac)
+    learner = config.learner_config
+    return MAAC(learner) if isinstance(learner, MAACConfig) else DDPG(learner)
 
 
 def make_transform(config: TrainConfig) -> Transform:
-    if config.variant == "plain":
-        return Plain()
-    if config.variant == "pessimistic":
-        return Pessimistic(penalty=config.penalty)
-    return CCR(config.ccr)
+    return config.transform_config

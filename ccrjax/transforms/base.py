@@ -115,7 +115,7 @@ class Pessimistic(Plain):
     exactly the plain learner.
     """
 
-    penalty: float = 1.0
+    penalty: float = 1.0  # reward lowered on every step a robot is in danger
     name = "pessimistic"
 
     def __post_init__(self) -> None:
