@@ -169,7 +169,8 @@ def add_dataclass_options(
     parser: argparse.ArgumentParser, cls: type, prefix: str, title: str,
     exclude: Iterable[str] = (),
 ) -> None:
-    """Adds ``--<prefix>-<field>`` for every field of the dataclass ``cls`` (defaults shown).
+    """Adds ``--<prefix>-<field>`` for every field of the dataclass ``cls`` (defaults shown),
+    each by :func:`add_field_option`.
 
     Values are only converted here; the dataclass validates them when it is built.
     The options default to ``None`` (= keep the dataclass default), so a run's
@@ -177,38 +178,35 @@ def add_dataclass_options(
     """
     group = parser.add_argument_group(title)
     hints = typing.get_type_hints(cls)
-    helps = field_help(cls)
+    defaults = cls()
     for field in dataclasses.fields(cls):
         if field.name in exclude:
             continue
-        default = field.default
-        convert, metavar = _converter(hints.get(field.name, field.type), default)
-        shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
-        group.add_argument(
-            f"--{prefix}-{field.name.replace('_', '-')}",
-            dest=f"{prefix}__{field.name}",
-            type=convert,
-            default=None,
-            metavar=metavar,
-            help=f"{helps.get(field.name, field.name.replace('_', ' '))} (default: {shown})",
-        )
+        convert, metavar = _converter(hints.get(field.name, field.type), field.default)
+        add_field_option(group, f"--{prefix}-{field.name.replace('_', '-')}", defaults,
+                         field.name, convert, dest=f"{prefix}__{field.name}", metavar=metavar)
 
 
 def add_field_option(
     group: Any, option: str, owner: Any, field: str, convert: Callable[[str], Any] | None = None,
     *, choices: Iterable[str] | None = None, shown: Any = None, dest: str | None = None,
+    metavar: str | None = None,
 ) -> None:
     """Adds ``option`` for the field ``field`` of the dataclass instance ``owner``: its help
     text from the field's comment (:func:`field_help`), its shown default ``owner``'s value
     (or ``shown``). The option defaults to ``None``: left out, the value is not changed."""
     default = getattr(owner, field) if shown is None else shown
-    shown_text = f"{default:,}" if isinstance(default, int) and not isinstance(
-        default, bool) else default
+    if isinstance(default, tuple):
+        default = ",".join(map(str, default))
+    elif isinstance(default, int) and not isinstance(default, bool):
+        default = f"{default:,}"
+    if metavar is None and choices is None:  # named after the option, not the field
+        metavar = option.lstrip("-").replace("-", "_").upper()
     group.add_argument(
-        option, dest=dest or field, type=convert, default=None,
+        option, dest=dest or field, type=convert, default=None, metavar=metavar,
         choices=tuple(choices) if choices is not None else None,
         help=f"{field_help(type(owner)).get(field, field.replace('_', ' '))} "
-             f"(default: {shown_text})",
+             f"(default: {default})",
     )
 
 

@@ -81,6 +81,28 @@ from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 PROG = "python -m ccrjax.train"
 # A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
 DEFAULT_TRAIN = TrainConfig(scenario="hidden_obstacle", variant="ccr")
+# The options that set a TrainConfig field (option, field, converter, extras): the parser
+# and resolve() both read this table; the option's value lands in args.<field>.
+TRAIN_OPTIONS: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
+    ("--scenario", "scenario", None, {"choices": SCENARIOS}),
+    ("--algo", "algo", None, {"choices": ALGOS}),
+    ("--variant", "variant", None, {"choices": VARIANTS}),
+    ("--steps", "total_env_steps", cli.positive_int,
+     {"shown": ", ".join(f"{v:,} for {k}" for k, v in DEFAULT_BUDGET.items())}),
+    ("--num-envs", "num_envs", cli.int_in(1, 65536), {}),
+    ("--robots", "num_robots", cli.int_in(2, 64), {}),
+    ("--episode-length", "episode_length", cli.int_in(1, 10_000), {}),
+    ("--eval-every", "eval_every", cli.positive_int, {}),
+    ("--eval-episodes", "eval_episodes", cli.int_in(1, 65536), {}),
+    ("--learning-starts", "learning_starts", cli.non_negative_int, {}),
+)
+# The options that set a RunSpec field: the seeds (with the run's), then the checkpoints.
+SPEC_OPTIONS: tuple[tuple[str, str, Any], ...] = (
+    ("--seeds", "seeds", cli.int_in(1, 1024)),
+    ("--seed-offset", "seed_offset", cli.seed_int),
+    ("--checkpoint-every", "checkpoint_every", cli.positive_int),
+    ("--keep-checkpoints", "keep_checkpoints", cli.int_in(1, 1000)),
+)
 NONFINITE = 1
 
 
@@ -96,36 +118,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     # Every option's help and default come from the dataclass field it sets.
     run = parser.add_argument_group("the run")
-    base, spec = DEFAULT_TRAIN, RunSpec(train=DEFAULT_TRAIN)
-    budget = ", ".join(f"{v:,} for {k}" for k, v in DEFAULT_BUDGET.items())
-    for option, owner, field, convert, extra in (
-        ("--scenario", base, "scenario", None, {"choices": SCENARIOS}),
-        ("--algo", base, "algo", None, {"choices": ALGOS}),
-        ("--variant", base, "variant", None, {"choices": VARIANTS}),
-        ("--lam", CCRConfig(), "lam", cli.non_negative_float, {}),
-        ("--penalty", Pessimistic(), "penalty", cli.non_negative_float, {}),
-        ("--seeds", spec, "seeds", cli.int_in(1, 1024), {}),
-        ("--seed-offset", spec, "seed_offset", cli.seed_int, {}),
-        ("--steps", base, "total_env_steps", cli.positive_int, {"shown": budget,
-                                                                 "dest": "steps"}),
-        ("--num-envs", base, "num_envs", cli.int_in(1, 65536), {}),
-        ("--robots", base, "num_robots", cli.int_in(2, 64), {"dest": "robots"}),
-        ("--episode-length", base, "episode_length", cli.int_in(1, 10_000), {}),
-        ("--eval-every", base, "eval_every", cli.positive_int, {}),
-        ("--eval-episodes", base, "eval_episodes", cli.int_in(1, 65536), {}),
-        ("--learning-starts", base, "learning_starts", cli.non_negative_int, {}),
-    ):
-        cli.add_field_option(run, option, owner, field, convert, **extra)
+    for option, field, convert, extra in TRAIN_OPTIONS:
+        cli.add_field_option(run, option, DEFAULT_TRAIN, field, convert, **extra)
+    for option, owner, field in (("--lam", CCRConfig(), "lam"),
+                                 ("--penalty", Pessimistic(), "penalty")):
+        cli.add_field_option(run, option, owner, field, cli.non_negative_float)
+    spec = RunSpec(train=DEFAULT_TRAIN)
+    for option, field, convert in SPEC_OPTIONS[:2]:
+        cli.add_field_option(run, option, spec, field, convert)
 
     folder = parser.add_argument_group("the run folder")
     folder.add_argument("--out", type=Path, default=None,
                         help="run folder (default: runs/<scenario>-<algo>-<variant>-<time>)")
     folder.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its latest checkpoint")
-    cli.add_field_option(folder, "--checkpoint-every", spec, "checkpoint_every",
-                         cli.positive_int)
-    cli.add_field_option(folder, "--keep-checkpoints", spec, "keep_checkpoints",
-                         cli.int_in(1, 1000))
+    for option, field, convert in SPEC_OPTIONS[2:]:
+        cli.add_field_option(folder, option, spec, field, convert)
     folder.add_argument("--keep-buffer", action="store_true",
                         help="keep the replay buffer in a finished run's last checkpoint (it "
                         "is dropped by default: only extending the run exactly needs it)")
@@ -151,15 +159,8 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     ``ValueError`` for values the configuration refuses."""
 
     train = base.train if base is not None else DEFAULT_TRAIN
-    fields: dict[str, Any] = {}
-    for option, field in (("scenario", "scenario"), ("algo", "algo"), ("variant", "variant"),
-                          ("num_envs", "num_envs"), ("robots", "num_robots"),
-                          ("episode_length", "episode_length"), ("eval_every", "eval_every"),
-                          ("eval_episodes", "eval_episodes"),
-                          ("learning_starts", "learning_starts"), ("steps", "total_env_steps")):
-        value = getattr(args, option)
-        if value is not None:
-            fields[field] = value
+    fields = {field: getattr(args, field) for _, field, _, _ in TRAIN_OPTIONS
+              if getattr(args, field) is not None}
     algo = fields.get("algo", train.algo)
     variant = fields.get("variant", train.variant)
     if algo != train.algo:  # another learner: its own defaults and budget
@@ -194,11 +195,8 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
                                 transform=train.transform_config,
                                 total_env_steps=train.budget)
 
-    run_fields = {}
-    for option in ("seeds", "seed_offset", "checkpoint_every", "keep_checkpoints"):
-        value = getattr(args, option)
-        if value is not None:
-            run_fields[option] = value
+    run_fields = {field: getattr(args, field) for _, field, _ in SPEC_OPTIONS
+                  if getattr(args, field) is not None}
     if base is None:
         return RunSpec(train=train, **run_fields)
     return dataclasses.replace(base, train=train, **run_fields)

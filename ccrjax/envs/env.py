@@ -70,10 +70,12 @@ with contextlib.redirect_stdout(io.StringIO()):
     from brax.envs.base import Env, State
 
 MIN_ROBOTS, MAX_ROBOTS = 2, 64
+ROBOT_RADIUS = 0.05  # the MPE's agent size
+NUM_DISCRETE_ACTIONS = 5
 
 
 def check_team(scenario: Scenario, num_robots: int, episode_length: int,
-               robot_radius: float = 0.05, layout: Layout | None = None) -> None:
+               robot_radius: float = ROBOT_RADIUS, layout: Layout | None = None) -> None:
     """Refuses a team and episode the environment cannot run (the checks that need no
     environment: a training configuration makes them when it is built)."""
     check_int("", "num_robots", num_robots, MIN_ROBOTS, MAX_ROBOTS)
@@ -81,7 +83,6 @@ def check_team(scenario: Scenario, num_robots: int, episode_length: int,
     layout = layout or Layout()
     layout.check_team(num_robots, robot_radius)
     scenario.check_layout(layout, robot_radius)
-NUM_DISCRETE_ACTIONS = 5
 
 
 @struct.dataclass
@@ -120,7 +121,7 @@ class CCREnv(Env):
         num_robots: int = 5,
         num_envs: int = 1,
         episode_length: int = 25,
-        robot_radius: float = 0.05,
+        robot_radius: float = ROBOT_RADIUS,
         sensitivity: float = 5.0,
         discrete_actions: bool = False,
         layout: Layout | None = None,

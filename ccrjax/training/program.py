@@ -218,8 +218,8 @@ class TrainProgram:
         The compiled program never applies a non-finite update (it keeps the last
         finite parameters and records the iteration), so the state is still usable.
         """
-        runs = np.size(jax.device_get(state.nonfinite_iteration))
-        found = first_nonfinite(state.nonfinite_iteration, seeds or range(runs))
+        bad = np.asarray(jax.device_get(state.nonfinite_iteration)).reshape(-1)
+        found = first_nonfinite(bad, range(bad.size) if seeds is None else seeds)
         if found is not None:
             raise NonFiniteTraining(found.message())
 
