@@ -270,15 +270,30 @@ def checkpoint_steps(out: Path) -> list[int]:
     return RunFolder(out).checkpoint_steps()
 
 
+def assert_stopped_cleanly(status: int, err: str, *fragments: str) -> None:
+    """Status 130, no traceback, and each of ``fragments`` in the message."""
+    assert status == train.INTERRUPTED, err
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in err, err
+
+
+def resume_to_the_end(out: Path, capsys) -> str:
+    """``--resume`` of the run in ``out`` to its end; returns what it printed to stderr."""
+    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress",
+                                      "--keep-buffer"], capsys)
+    assert status == 0, err
+    return err
+
+
 def test_sigterm_during_compilation_exits_130_and_the_same_command_starts_over(
     finished_run, tmp_path, subprocess_env, capsys
 ):
     out = tmp_path / "compiling"
     status, err = stopped_at("compilation", "SIGTERM", 1, [*TINY, "--out", out],
                              subprocess_env)
-    assert status == train.INTERRUPTED, err
-    assert "Traceback" not in err
-    assert "stopped by SIGTERM before training began; no checkpoint was written" in err
+    assert_stopped_cleanly(status, err,
+                           "stopped by SIGTERM before training began; no checkpoint was written")
     assert checkpoint_steps(out) == [] and (out / "config.json").exists()
     status, _, err = run_main(train, [*TINY, "--out", out], capsys)  # the same command
     assert status == 0, err
@@ -292,12 +307,8 @@ def test_a_second_ctrl_c_during_compilation_stops_at_once_and_resume_starts_over
 ):
     out = tmp_path / "twice"
     status, err = stopped_at("compilation", "SIGINT", 2, [*TINY, "--out", out], subprocess_env)
-    assert status == train.INTERRUPTED, err
-    assert "Traceback" not in err and "stopped at once before training began" in err
-    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress",
-                                      "--keep-buffer"], capsys)
-    assert status == 0, err
-    assert "starts again from the beginning" in err
+    assert_stopped_cleanly(status, err, "stopped at once before training began")
+    assert "starts again from the beginning" in resume_to_the_end(out, capsys)
     assert_same_run(finished_run, out)
 
 
@@ -307,9 +318,7 @@ def test_ctrl_c_during_the_first_chunk_finishes_it_and_saves_a_checkpoint(
     out = tmp_path / "first-chunk"
     status, err = stopped_at("first-chunk", "SIGINT", 1, [*TINY, "--out", out],
                              subprocess_env)
-    assert status == train.INTERRUPTED, err
-    assert "Traceback" not in err
-    assert "finishing the current chunk" in err and "checkpoint 200 is saved" in err
+    assert_stopped_cleanly(status, err, "finishing the current chunk", "checkpoint 200 is saved")
     assert checkpoint_steps(out) == [200]
 
 
@@ -319,12 +328,10 @@ def test_a_second_sigterm_during_a_checkpoint_write_keeps_it_whole_and_resumes_e
     out = tmp_path / "writing"
     status, err = stopped_at("checkpoint-write", "SIGTERM", 2, [*TINY, "--out", out],
                              subprocess_env)
-    assert status == train.INTERRUPTED, err
-    assert "Traceback" not in err and "stopped at once at 200 steps per seed" in err
-    assert "checkpoint 200 is saved" in err and checkpoint_steps(out) == [200]
-    status, _, err = run_main(train, ["--out", out, "--resume", "--no-progress",
-                                      "--keep-buffer"], capsys)
-    assert status == 0, err
+    assert_stopped_cleanly(status, err, "stopped at once at 200 steps per seed",
+                           "checkpoint 200 is saved")
+    assert checkpoint_steps(out) == [200]
+    resume_to_the_end(out, capsys)
     assert_same_run(finished_run, out)
 
 
@@ -336,8 +343,7 @@ def test_evaluate_stopped_during_evaluation_exits_130_and_writes_nothing(
     (out / "evaluation.json").unlink(missing_ok=True)
     status, err = stopped_at("evaluation", "SIGTERM", 1, [out, "--episodes", "4"],
                              subprocess_env, command="evaluate")
-    assert status == train.INTERRUPTED, err
-    assert "Traceback" not in err and "stopped; the run's checkpoints are unchanged" in err
+    assert_stopped_cleanly(status, err, "stopped; the run's checkpoints are unchanged")
     assert not (out / "evaluation.json").exists()
 
 
