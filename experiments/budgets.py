@@ -1,48 +1,97 @@
-"""Budgets at which the plain learners have levelled off: ``python experiments/budgets.py``.
+"""Budgets at which the plain learners' return has levelled off: ``python experiments/budgets.py``.
 
-    python experiments/budgets.py --steps 2000000 --seeds 3 --out runs/budgets
-    python experiments/budgets.py --algos maddpg --scenarios nominal --steps 40000 \\
-        --eval-every 10000 --seeds 2 --out /tmp/b            # small, for the tests
+    python experiments/budgets.py --out runs/budgets
+    python experiments/budgets.py --algos iddpg maddpg --scenarios hidden_obstacle \\
+        --out experiments/results/budgets --force
+    python experiments/budgets.py --quick --scenarios turbulence --algos iddpg --out /tmp/b
 
-Trains the **plain** learners only (never CCR or the pessimistic baseline: the control
-decides the budget) in every scenario for ``--steps`` environment steps per seed,
-``--seeds`` seeds at once per scenario and learner (one vmapped program each, seeds
-200, 201, ... by default: disjoint from the tables' seeds 0-9 and the searches' selection
-seeds 100-102), and reports, for each candidate budget (every ``--candidate-every``
-steps), whether the evaluated return has plateaued by then (:func:`ccrjax.run.stats.plateau`:
-the mean of the last 20% of evaluations lies within the 95% interval of the 20% before).
-The proposed budget of a scenario and learner is the smallest candidate from which on
-every larger candidate plateaus too. Writes ``budgets.json`` (the curves and the checks)
-and ``budgets.md`` to ``--out`` (default ``runs/budgets``).
+Trains the **plain** learners only (the control decides the budget, never CCR or the
+pessimistic baseline) for ``--steps`` environment steps per seed (default: the protocol's
+budget of each learner, so the run confirms it or says where it falls short), on the
+budget seeds 200-202, disjoint from the tables' 0-9 and the selection seeds 100-102. For
+each candidate budget (every ``--candidate-every`` steps) it checks whether the evaluated
+return had plateaued by then (:func:`ccrjax.run.stats.plateau`: the mean of the last 20% of
+evaluations lies within the 95% interval of the 20% before). The proposed budget is the
+smallest candidate from which on every larger candidate plateaus too, ``None`` if the
+return is still moving at ``--steps``.
+
+Each scenario and learner is one vmapped program. Its cell is written to
+``<out>/cells/<scenario>-<algo>.json`` when it finishes (curves, checks, proposal, wall
+time, device, commit); a re-run skips the cells made with the same settings, whatever
+scenarios and learners it names, so the grid can be spread over invocations and machines.
+Then ``budgets.json`` (every cell and invocation), ``budgets.md`` and ``curves_<algo>.png``
+(return, success and danger along training, one line per scenario).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
 import protocol
+from ledger import (
+    cell_path,
+    device_name,
+    duration,
+    log,
+    open_experiment,
+    plan_pairs,
+    settings_record,
+)
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
-from ccrjax.run.stats import plateau
+from ccrjax.run.paper import SCENARIOS
+from ccrjax.run.search import summarise
+from ccrjax.run.stats import format_mean_ci, plateau
 from ccrjax.training import ALGOS, TrainConfig
-from ccrjax.training.grid import train_grid
+from ccrjax.training.grid import GridTraining
+from ccrjax.viz.plots import Curves, draw_curves
 
-SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
-SEED_OFFSET = protocol.BUDGET_SEED_OFFSET
+PROG = "python experiments/budgets.py"
+ALL_SCENARIOS = (*SCENARIOS, "nominal")
+CANDIDATE_EVERY = 250_000
+QUICK_CANDIDATE_EVERY = 200
+FINAL_METRICS = ("return", "success_rate", "danger_frequency")
+YES_NO = {True: "yes", False: "**no**", None: "too few evaluations"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """What every cell is trained and checked with (a cell made otherwise is redone)."""
+
+    seeds: tuple[int, ...] = tuple(range(protocol.BUDGET_SEED_OFFSET,
+                                         protocol.BUDGET_SEED_OFFSET + 3))
+    steps: int | None = None  # None: the protocol's budget of each learner
+    eval_every: int = protocol.EVAL_EVERY
+    eval_episodes: int = protocol.EVAL_EPISODES
+    candidate_every: int = CANDIDATE_EVERY
+    scenarios: tuple[str, ...] = SCENARIOS
+    algos: tuple[str, ...] = ALGOS
+    quick: bool = False
+
+    def budget(self, algo: str) -> int:
+        return protocol.budget(algo, self.steps)
+
+    def config(self, scenario: str, algo: str) -> TrainConfig:
+        return protocol.run_config(self, scenario, algo, "plain")
+
+    def candidates(self, algo: str) -> list[int]:
+        return list(range(self.candidate_every, self.budget(algo) + 1, self.candidate_every))
 
 
 def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
                   ) -> tuple[list[dict[str, Any]], int | None]:
-    """The plateau check of the curves ``returns`` ``[seeds, points]`` cut at each candidate
-    budget, and the proposed budget (``None`` if the curve never settles)."""
+    """The plateau check of the curves ``returns`` ``[seeds, points]`` (evaluated at
+    ``steps`` ``[points]``) cut at each candidate budget, and the proposed budget: the
+    smallest candidate from which on every checked candidate plateaus (``None`` if the
+    last one does not). Candidates with too few evaluations to check are left out."""
     checks = []
     for budget in candidates:
         points = int(np.searchsorted(steps, budget, side="right"))
@@ -59,92 +108,167 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
     return checks, proposed
 
 
+def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
+    training = GridTraining(settings.config(scenario, algo), settings.seeds)
+    training.compile(not settings.quick)
+    runs = training.run()
+    steps = np.asarray(runs.history["env_steps"][0])
+    checks, proposed = check_budgets(steps, runs.history["return"], settings.candidates(algo))
+    return {
+        "scenario": scenario, "algo": algo, "settings": settings_record(settings),
+        "seeds": list(settings.seeds), "env_steps": steps.tolist(),
+        "curves": {m: runs.history[m].tolist() for m in
+                   ("return", "success_rate", "danger_frequency", "target_distance")},
+        "checks": checks, "proposed_budget": proposed,
+        "plateaued_at_budget": checks[-1]["plateaued"] if checks else None,
+        "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
+        "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+    }
+
+
+def final_stats(cell: dict[str, Any], metric: str) -> dict[str, Any]:
+    """Mean and 95% interval (within the metric's range) over seeds of ``metric`` at the
+    last evaluation."""
+    return summarise(np.array([curve[-1] for curve in cell["curves"][metric]]), metric)
+
+
+def budgets_markdown(result: dict[str, Any]) -> str:
+    settings = result["settings"]
+    lines = [
+        "# Budgets of the plain learners",
+        "",
+        f"Budget seeds {settings['seeds']}; {result['budgets']} environment steps per seed; "
+        f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "
+        f"episodes per seed; candidate budgets every {settings['candidate_every']:,} steps. "
+        "Plateaued: the mean over seeds of the last 20% of evaluations lies within the 95% "
+        "Student-t interval of the 20% before. Proposed: the smallest candidate from which "
+        "on every candidate plateaus (none: still moving at the end). Final values: mean "
+        "and 95% interval over seeds at the last evaluation. Made by:",
+        "",
+        *(f"* `{run['command']}` at `{run['commit']}` on {run['device']}, {run['date']}: "
+          f"{run['programs_trained']} program(s), {duration(run['wall_time_s'])}"
+          + ("" if run["finished"] else " (stopped before the end)")
+          for run in result["invocations"]),
+        "",
+        "| learner | scenario | plateaued at the end | proposed budget | return | success | "
+        "danger | program |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for cell in result["cells"]:
+        proposed = cell["proposed_budget"]
+        lines.append(
+            f"| {cell['algo']} | {cell['scenario']} | {YES_NO[cell['plateaued_at_budget']]} | "
+            f"{'none' if proposed is None else f'{proposed:,}'} | "
+            f"{format_mean_ci(final_stats(cell, 'return'), False, digits=1)} | "
+            f"{format_mean_ci(final_stats(cell, 'success_rate'), True, digits=1)} | "
+            f"{format_mean_ci(final_stats(cell, 'danger_frequency'), True, digits=1)} | "
+            f"{duration(cell['train_s'] + cell['compile_s'])} on {cell['device']} at "
+            f"`{cell['commit']}` |")
+    return "\n".join(lines) + "\n"
+
+
+def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path) -> list[Path]:
+    """``curves_<algo>.png``: return, success and danger along training per scenario."""
+    paths = []
+    for algo in dict.fromkeys(a for _, a in cells):
+        curves = Curves()
+        for (scenario, cell_algo), cell in cells.items():
+            if cell_algo == algo:
+                curves.add(scenario, cell["env_steps"],
+                           {m: np.asarray(cell["curves"][m]) for m in FINAL_METRICS})
+        path = out / f"curves_{algo}.png"
+        draw_curves(curves, path, metrics=FINAL_METRICS,
+                    title=f"plain {algo}, budget seeds: is the return still moving?")
+        paths.append(path)
+    return paths
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = cli.Parser(prog="python experiments/budgets.py",
-                        description=__doc__.split("\n\n")[0])
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
-    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
-    parser.add_argument("--steps", type=int, default=2_000_000,
-                        help="environment steps per seed (default 2,000,000)")
-    parser.add_argument("--eval-every", type=int, default=50_000,
-                        help="environment steps between evaluations (default 50,000)")
-    parser.add_argument("--candidate-every", type=int, default=250_000,
-                        help="candidate budgets are multiples of this (default 250,000)")
-    parser.add_argument("--seeds", type=int, default=3, help="seeds per learner (default 3)")
-    parser.add_argument("--seed-offset", type=int, default=SEED_OFFSET)
-    parser.add_argument("--eval-episodes", type=int, default=64)
-    parser.add_argument("--out", type=Path, default=Path("runs/budgets"))
+    parser = cli.Parser(prog=PROG, description=__doc__.split("\n\n")[0].strip("`:. "))
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
+                        help="learners (default: all three)")
+    parser.add_argument("--scenarios", nargs="+", choices=ALL_SCENARIOS,
+                        default=list(SCENARIOS), help="scenarios (default: the paper's three)")
+    parser.add_argument("--steps", type=cli.positive_int, default=None,
+                        help="environment steps per seed for every learner (default: the "
+                        f"protocol's budgets {protocol.BUDGETS})")
+    parser.add_argument("--eval-every", type=cli.positive_int, default=protocol.EVAL_EVERY,
+                        help="environment steps between evaluations (default: %(default)s)")
+    parser.add_argument("--candidate-every", type=cli.positive_int, default=CANDIDATE_EVERY,
+                        help="candidate budgets are its multiples (default: %(default)s)")
+    parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
+                        help="seeds per learner, at least 2 (default: %(default)s)")
+    parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.BUDGET_SEED_OFFSET,
+                        help="first seed (default: %(default)s; the tables use 0-9, the "
+                        "searches 100-102)")
+    parser.add_argument("--eval-episodes", type=cli.positive_int,
+                        default=protocol.EVAL_EPISODES,
+                        help="fresh episodes per evaluation and seed (default: %(default)s)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a tiny budget and tiny networks: the pipeline in moments")
+    parser.add_argument("--out", type=Path, default=Path("runs/budgets"),
+                        help="results folder (default: %(default)s; committed results go to "
+                        "experiments/results/budgets)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
     return parser
 
 
+def settings_from(args: argparse.Namespace) -> Settings:
+    seeds = tuple(range(args.seed_offset, args.seed_offset + args.seeds))
+    taken = set(protocol.TABLE_SEEDS) | set(protocol.SELECTION_SEEDS)
+    if set(seeds) & taken:
+        raise cli.UsageError(
+            f"--seed-offset {args.seed_offset}: the budget seeds must stay clear of the "
+            f"tables' seeds {protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]} and the "
+            f"selection seeds {protocol.SELECTION_SEEDS[0]}-{protocol.SELECTION_SEEDS[-1]}")
+    fields: dict[str, Any] = {
+        "seeds": seeds, "steps": args.steps, "eval_every": args.eval_every,
+        "eval_episodes": args.eval_episodes, "candidate_every": args.candidate_every,
+        "scenarios": tuple(dict.fromkeys(args.scenarios)),
+        "algos": tuple(dict.fromkeys(args.algos)),
+    }
+    if args.quick:
+        fields.update(quick=True, steps=args.steps or 10 * protocol.QUICK_STEPS,
+                      eval_every=protocol.QUICK_EVAL_EVERY,
+                      eval_episodes=protocol.QUICK_EVAL_EPISODES,
+                      candidate_every=QUICK_CANDIDATE_EVERY)
+    settings = Settings(**fields)
+    for scenario in settings.scenarios:  # every configuration validated before compiling
+        for algo in settings.algos:
+            settings.config(scenario, algo)
+    return settings
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.seeds < 2:
-        parser.error(f"--seeds must be at least 2 for the plateau's interval, got {args.seeds}")
-    for name in ("steps", "eval_every", "candidate_every", "eval_episodes"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name.replace('_', '-')} must be an integer >= 1")
-    seeds = list(range(args.seed_offset, args.seed_offset + args.seeds))
-    if set(seeds) & (set(protocol.TABLE_SEEDS) | set(protocol.SELECTION_SEEDS)):
-        parser.error("--seed-offset: the budget seeds must stay clear of the tables' seeds "
-                     f"{protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]} and the selection "
-                     f"seeds {protocol.SELECTION_SEEDS}")
-    try:  # every configuration validated before anything compiles
-        for algo in args.algos:
-            for scenario in args.scenarios:
-                TrainConfig(algo=algo, scenario=scenario, variant="plain",
-                            total_env_steps=args.steps, eval_every=args.eval_every,
-                            eval_episodes=args.eval_episodes)
-    except ValueError as error:
-        parser.error(str(error))
-    args.out.mkdir(parents=True, exist_ok=True)
-    candidates = list(range(args.candidate_every, args.steps + 1, args.candidate_every))
-    rows, start = [], time.time()
-    device = str(jax.devices()[0].device_kind)
-    for algo in args.algos:
-        for scenario in args.scenarios:
-            config = TrainConfig(algo=algo, scenario=scenario, variant="plain",
-                                 total_env_steps=args.steps, eval_every=args.eval_every,
-                                 eval_episodes=args.eval_episodes)
-            began = time.time()
-            runs = train_grid(config, seeds)
-            steps = np.asarray(runs.history["env_steps"][0])
-            checks, proposed = check_budgets(steps, runs.history["return"], candidates)
-            row = {
-                "algo": algo, "scenario": scenario, "seeds": seeds,
-                "env_steps": steps.tolist(),
-                "curves": {m: runs.history[m].tolist() for m in
-                           ("return", "success_rate", "danger_frequency", "target_distance")},
-                "checks": checks, "proposed_budget": proposed,
-                "compile_s": runs.compile_s, "run_s": runs.run_s,
-                "wall_s": time.time() - began,
-            }
-            rows.append(row)
-            final = {m: float(np.mean(runs.history[m][:, -1])) for m in
-                     ("return", "success_rate", "danger_frequency")}
-            print(f"{algo:7} {scenario:16} proposed {proposed} · final return "
-                  f"{final['return']:.1f} success {final['success_rate']:.3f} danger "
-                  f"{final['danger_frequency']:.3f} · {row['wall_s']:.0f} s", flush=True)
-            result = {"rows": rows, "steps": args.steps, "eval_every": args.eval_every,
-                      "device": device, "commit": git_commit(),
-                      "command": " ".join(["python experiments/budgets.py",
-                                           *(argv if argv is not None else sys.argv[1:])]),
-                      "seconds": time.time() - start}
-            write_atomic(args.out / "budgets.json", json.dumps(result))
-    lines = ["| learner | scenario | proposed budget | final return | final success | "
-             "final danger |", "|---|---|---|---|---|---|"]
-    for row in rows:
-        curves = row["curves"]
-        lines.append(
-            f"| {row['algo']} | {row['scenario']} | {row['proposed_budget']} | "
-            f"{np.mean([c[-1] for c in curves['return']]):.1f} | "
-            f"{np.mean([c[-1] for c in curves['success_rate']]):.3f} | "
-            f"{np.mean([c[-1] for c in curves['danger_frequency']]):.3f} |")
-    lines += ["", f"`{result['command']}`, commit `{result['commit']}`, {device}, "
-              f"{result['seconds']:.0f} s"]
-    write_atomic(args.out / "budgets.md", "\n".join(lines) + "\n")
-    print("\n".join(lines))
+    args = build_parser().parse_args(argv)
+    settings, ledger = open_experiment(PROG, argv, args.out, args.force,
+                                       lambda: settings_from(args))
+    out = args.out
+    cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
+                                       f"{len(settings.seeds)} seeds each")
+    for index, (scenario, algo) in enumerate(todo):
+        cell = train_cell(settings, scenario, algo)
+        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        cells[(scenario, algo)] = cell
+        ledger.record(index + 1)
+        log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
+        log(f"  {algo} {scenario}: plateaued at the end {cell['plateaued_at_budget']}, "
+            f"proposed budget {cell['proposed_budget']}")
+    ledger.record(len(todo), finished=True)
+    ordered = {(s, a): cells[(s, a)] for a in settings.algos for s in settings.scenarios}
+    result = {
+        "settings": settings_record(settings),
+        "budgets": {a: settings.budget(a) for a in settings.algos},
+        "invocations": ledger.invocations,
+        "cells": list(ordered.values()),
+    }
+    write_atomic(out / "budgets.json", json.dumps(result) + "\n")
+    write_atomic(out / "budgets.md", budgets_markdown(result))
+    figures = draw_budget_curves(ordered, out)
+    print(budgets_markdown(result))
+    print(f"wrote {out / 'budgets.md'}, budgets.json, "
+          + ", ".join(path.name for path in figures))
     return 0
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
@@ -65,6 +66,41 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
     ledger = Ledger(out, settings, command)
     ledger.record(0)
     return settings, ledger
+
+
+def cell_path(out: Path, scenario: str, algo: str) -> Path:
+    """Where the cell of one scenario and learner is kept (the searches, the budgets)."""
+    return out / "cells" / f"{scenario}-{algo}.json"
+
+
+def cell_settings(record: dict[str, Any], algo: str) -> dict[str, Any]:
+    """What one scenario-and-learner cell depends on, from a settings record: the lists of
+    scenarios and learners an invocation named do not change a cell, so a cell made by a
+    narrower or a wider invocation with the same settings is kept, not trained again."""
+    kept = {k: v for k, v in record.items() if k not in ("scenarios", "algos", "steps")}
+    kept["budget"] = protocol.budget(algo, record["steps"])
+    return kept
+
+
+def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
+               ) -> tuple[dict[tuple[str, str], dict], list[tuple[str, str]], Progress]:
+    """The cells already made with ``settings`` (a dataclass with ``scenarios``, ``algos``,
+    ``steps`` and ``budget(algo)``) by (scenario, algo), the pairs still to train (``runs``
+    runs of ``budget(algo)`` steps each, described by ``runs_text``), and their progress."""
+    pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
+    cells, todo = {}, []
+    for scenario, algo in pairs:
+        cell = read_json(cell_path(out, scenario, algo))
+        wanted = cell_settings(settings_record(settings), algo)
+        if cell and cell_settings(cell["settings"], algo) == wanted:
+            cells[(scenario, algo)] = cell
+        else:
+            todo.append((scenario, algo))
+    log(f"{len(pairs) - len(todo)} of {len(pairs)} programs already done; {len(todo)} to train "
+        f"({runs_text}, on {device_name()})")
+    progress = Progress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
+    (out / "cells").mkdir(parents=True, exist_ok=True)
+    return cells, todo, progress
 
 
 def device_name() -> str:

@@ -8,6 +8,7 @@ evaluation settings. ``experiments/search.py`` and ``experiments/tables.py`` rea
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
@@ -37,6 +38,24 @@ LAMBDAS = (0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 PENALTIES = (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)
 SEARCHED = {"ccr": ("lam", LAMBDAS), "pessimistic": ("penalty", PENALTIES)}
 RULE = SelectionRule(objective="danger_frequency", constraint="success_rate", tolerance=0.05)
+
+
+def budget(algo: str, steps: int | None) -> int:
+    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``."""
+    return steps if steps is not None else BUDGETS[algo]
+
+
+def run_config(settings: Any, scenario: str, algo: str, variant: str,
+               **fields: Any) -> TrainConfig:
+    """One run's configuration under an experiment's ``settings`` (its ``steps``,
+    ``eval_every``, ``eval_episodes`` and ``quick``): :func:`budget` steps, tiny sizes if
+    ``quick``; ``fields`` set the rest (the transform)."""
+    base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
+    if settings.quick:
+        base = quick(base)
+    return dataclasses.replace(base, total_env_steps=budget(algo, settings.steps),
+                               eval_every=settings.eval_every,
+                               eval_episodes=settings.eval_episodes, **fields)
 
 
 def quick(config: TrainConfig) -> TrainConfig:

@@ -34,12 +34,12 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
-    Progress,
+    cell_path,
     device_name,
     duration,
     log,
     open_experiment,
-    read_json,
+    plan_pairs,
     settings_record,
 )
 
@@ -72,32 +72,15 @@ class Settings:
     quick: bool = False
 
     def budget(self, algo: str) -> int:
-        return self.steps if self.steps is not None else protocol.BUDGETS[algo]
+        return protocol.budget(algo, self.steps)
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
-        base = TrainConfig(algo=algo, scenario=scenario, variant=self.variant)
-        if self.quick:
-            base = protocol.quick(base)
-        return dataclasses.replace(base, total_env_steps=self.budget(algo),
-                                   eval_every=self.eval_every, eval_episodes=self.eval_episodes)
+        return protocol.run_config(self, scenario, algo, self.variant)
 
     @property
     def grid_values(self) -> list[float]:
         """The reference 0 and the searched values."""
         return [0.0, *self.values]
-
-
-def cell_path(out: Path, scenario: str, algo: str) -> Path:
-    return out / "cells" / f"{scenario}-{algo}.json"
-
-
-def cell_settings(record: dict[str, Any], algo: str) -> dict[str, Any]:
-    """What one scenario-and-learner cell depends on, from a settings record: the lists of
-    scenarios and learners an invocation named do not change a cell, so a cell made by a
-    narrower or a wider invocation with the same settings is kept, not trained again."""
-    kept = {k: v for k, v in record.items() if k not in ("scenarios", "algos", "steps")}
-    kept["budget"] = record["steps"] if record["steps"] is not None else protocol.BUDGETS[algo]
-    return kept
 
 
 def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
@@ -123,27 +106,6 @@ def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
-
-
-def plan(settings: Settings, out: Path) -> tuple[dict, list[tuple[str, str]], Progress]:
-    """The finished cells by (scenario, algo), the pairs still to train, and their progress
-    tracker."""
-    pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
-    cells, todo = {}, []
-    for scenario, algo in pairs:
-        cell = read_json(cell_path(out, scenario, algo))
-        wanted = cell_settings(settings_record(settings), algo)
-        if cell and cell_settings(cell["settings"], algo) == wanted:
-            cells[(scenario, algo)] = cell
-        else:
-            todo.append((scenario, algo))
-    runs = len(settings.grid_values) * len(settings.seeds)
-    log(f"{len(pairs) - len(todo)} of {len(pairs)} programs already done; {len(todo)} to train "
-        f"({len(settings.grid_values)} values x {len(settings.seeds)} seeds = {runs} runs each, "
-        f"on {device_name()})")
-    progress = Progress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
-    (out / "cells").mkdir(parents=True, exist_ok=True)
-    return cells, todo, progress
 
 
 def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
@@ -287,7 +249,10 @@ def main(argv: list[str] | None = None) -> int:
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
-    cells, todo, progress = plan(settings, out)
+    runs = len(settings.grid_values) * len(settings.seeds)
+    cells, todo, progress = plan_pairs(
+        settings, out, runs, f"{len(settings.grid_values)} values x {len(settings.seeds)} "
+        f"seeds = {runs} runs each")
     for index, (scenario, algo) in enumerate(todo):
         cell = train_cell(settings, scenario, algo)
         write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")

@@ -126,17 +126,12 @@ class Settings:
     quick: bool = False
 
     def budget(self, algo: str) -> int:
-        return self.steps if self.steps is not None else protocol.BUDGETS[algo]
+        return protocol.budget(algo, self.steps)
 
     def config(self, scenario: str, algo: str, variant: str) -> TrainConfig:
-        base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
-        if self.quick:
-            base = protocol.quick(base)
         transform = {"plain": None, "pessimistic": Pessimistic(penalty=self.penalty),
                      "ccr": CCR(CCRConfig(lam=self.lam))}[variant]
-        return dataclasses.replace(
-            base, total_env_steps=self.budget(algo), eval_every=self.eval_every,
-            eval_episodes=self.eval_episodes, transform=transform)
+        return protocol.run_config(self, scenario, algo, variant, transform=transform)
 
 
 QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,

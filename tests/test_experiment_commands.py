@@ -8,6 +8,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
@@ -29,6 +30,11 @@ def search():
 @pytest.fixture(scope="module")
 def tables():
     return load("tables")
+
+
+@pytest.fixture(scope="module")
+def budgets():
+    return load("budgets")
 
 
 def refused(module, argv, capsys, *fragments):
@@ -57,7 +63,38 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_committed_results_need_force(search, tables, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("argv, fragments", [
+    (["--algos", "ppo"], ("--algos",)),
+    (["--scenarios", "lava"], ("--scenarios",)),
+    (["--seeds", "1"], ("--seeds",)),
+    (["--seed-offset", "0"], ("--seed-offset 0", "tables' seeds 0-9")),
+    (["--seed-offset", "99"], ("selection seeds 100-102",)),
+    (["--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
+    (["--candidate-every", "0"], ("--candidate-every",)),
+])
+def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
+    out = tmp_path / "never"
+    refused(budgets, [*argv, "--out", str(out)], capsys, *fragments)
+    assert not out.exists()
+
+
+def test_the_proposed_budget_is_where_the_return_stays_level(budgets):
+    """Made-up curves evaluated every 100 steps: rising until 1,000, then flat; a rise after
+    a flat stretch moves the proposal past it; a curve rising to the end has none."""
+    steps = np.arange(0, 2001, 100)
+    noise = np.array([[0.0], [0.1], [-0.1]])
+    rising_then_flat = np.minimum(steps, 1000) / 100 + noise
+    candidates = list(range(500, 2001, 500))
+    checks, proposed = budgets.check_budgets(steps, rising_then_flat, candidates)
+    assert [c["budget"] for c in checks] == candidates
+    assert [c["plateaued"] for c in checks] == [False, False, True, True]
+    assert proposed == 1500
+    relapse = rising_then_flat + np.where(steps > 1600, (steps - 1600) / 100, 0.0)
+    assert budgets.check_budgets(steps, relapse, candidates)[1] is None
+    assert budgets.check_budgets(steps, steps / 100 + noise, candidates)[1] is None
+
+
+def test_committed_results_need_force(search, tables, budgets, tmp_path, capsys, monkeypatch):
     import ledger
 
     results = tmp_path / "results"
@@ -68,6 +105,7 @@ def test_committed_results_need_force(search, tables, tmp_path, capsys, monkeypa
             "holds committed results", "--force")
     refused(tables, ["--lam", "30", "--penalty", "1", "--out", str(results / "search")],
             capsys, "--force")
+    refused(budgets, ["--out", str(results / "search")], capsys, "--force")
 
 
 def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):

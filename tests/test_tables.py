@@ -183,3 +183,30 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     wider = [*argv[:4], "turbulence", "strong_wind", *argv[5:]]  # the cell made above is kept
     assert search.main(wider) == 0
     assert "1 of 2 programs already done; 1 to train" in capsys.readouterr().err
+
+
+def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
+    """The plain learners' budget check over one scenario and two learners: the cells, the
+    checks and the proposal, the files; then a re-run that trains nothing and a wider one
+    that trains only the new cell."""
+    budgets = load_module("budgets_script", SCRIPT.parent / "budgets.py")
+    out = tmp_path / "budgets"
+    argv = ["--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--out", str(out)]
+    assert budgets.main(argv) == 0
+    result = json.loads((out / "budgets.json").read_text())
+    (cell,) = result["cells"]
+    assert (cell["scenario"], cell["algo"], cell["seeds"]) == ("turbulence", "iddpg",
+                                                              [200, 201, 202])
+    assert all(len(curve) == len(cell["env_steps"]) for curve in cell["curves"]["return"])
+    assert cell["checks"][-1]["budget"] == cell["env_steps"][-1]
+    assert cell["plateaued_at_budget"] == cell["checks"][-1]["plateaued"]
+    assert cell["device"].startswith("cpu")
+    for name in ("budgets.md", "curves_iddpg.png", "invocations.json"):
+        assert (out / name).stat().st_size > 0
+    capsys.readouterr()
+    assert budgets.main(argv) == 0
+    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
+    wider = [*argv[:4], "iddpg", "maddpg", *argv[5:]]
+    assert budgets.main(wider) == 0
+    assert "1 of 2 programs already done; 1 to train" in capsys.readouterr().err
+    assert (out / "curves_maddpg.png").exists()
