@@ -27,6 +27,10 @@ _FLAG = "--xla_backend_optimization_level=0"
 if _FLAG not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
 
+# On a GPU each pytest-xdist worker, and each subprocess, would reserve 75% of the device's
+# memory as JAX starts, and the second could not start: take memory as it is needed.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
 # One cache for the whole run: pytest-xdist's workers share the run's id.
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
 if _RUN:
