@@ -108,6 +108,14 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
     return checks, proposed
 
 
+def plateau_flag(returns: np.ndarray) -> bool | None:
+    """Whether the whole curves ``[seeds, points]`` end level (``None``: too few points)."""
+    try:
+        return plateau(returns)["plateaued"]
+    except ValueError:
+        return None
+
+
 def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
     training = GridTraining(settings.config(scenario, algo), settings.seeds)
     training.compile(not settings.quick)
@@ -120,7 +128,7 @@ def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
         "curves": {m: runs.history[m].tolist() for m in
                    ("return", "success_rate", "danger_frequency", "target_distance")},
         "checks": checks, "proposed_budget": proposed,
-        "plateaued_at_budget": checks[-1]["plateaued"] if checks else None,
+        "plateaued_at_budget": plateau_flag(runs.history["return"]),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
