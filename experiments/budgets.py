@@ -192,7 +192,8 @@ def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path) -> list[Pa
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = cli.Parser(prog=PROG, description=__doc__.split("\n\n")[0].strip("`:. "))
+    parser = cli.Parser(prog=PROG, description="The budgets at which the plain learners' "
+                        "evaluated return has levelled off, on the budget seeds.")
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners (default: all three)")
     parser.add_argument("--scenarios", nargs="+", choices=ALL_SCENARIOS,
@@ -200,20 +201,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per seed for every learner (default: the "
                         f"protocol's budgets {protocol.BUDGETS})")
-    parser.add_argument("--eval-every", type=cli.positive_int, default=protocol.EVAL_EVERY,
-                        help="environment steps between evaluations (default: %(default)s)")
-    parser.add_argument("--candidate-every", type=cli.positive_int, default=CANDIDATE_EVERY,
-                        help="candidate budgets are its multiples (default: %(default)s)")
+    parser.add_argument("--eval-every", type=cli.positive_int, default=None,
+                        help="environment steps between evaluations (default: "
+                        f"{protocol.EVAL_EVERY})")
+    parser.add_argument("--candidate-every", type=cli.positive_int, default=None,
+                        help=f"candidate budgets are its multiples (default: {CANDIDATE_EVERY})")
     parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
                         help="seeds per learner, at least 2 (default: %(default)s)")
     parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.BUDGET_SEED_OFFSET,
                         help="first seed (default: %(default)s; the tables use 0-9, the "
                         "searches 100-102)")
-    parser.add_argument("--eval-episodes", type=cli.positive_int,
-                        default=protocol.EVAL_EPISODES,
-                        help="fresh episodes per evaluation and seed (default: %(default)s)")
+    parser.add_argument("--eval-episodes", type=cli.positive_int, default=None,
+                        help="fresh episodes per evaluation and seed (default: "
+                        f"{protocol.EVAL_EPISODES})")
     parser.add_argument("--quick", action="store_true",
-                        help="a tiny budget and tiny networks: the pipeline in moments")
+                        help="tiny networks, and by default a tiny budget and evaluation: the "
+                        "pipeline in moments")
     parser.add_argument("--out", type=Path, default=Path("runs/budgets"),
                         help="results folder (default: %(default)s; committed results go to "
                         "experiments/results/budgets)")
@@ -230,17 +233,17 @@ def settings_from(args: argparse.Namespace) -> Settings:
             f"--seed-offset {args.seed_offset}: the budget seeds must stay clear of the "
             f"tables' seeds {protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]} and the "
             f"selection seeds {protocol.SELECTION_SEEDS[0]}-{protocol.SELECTION_SEEDS[-1]}")
+    # --quick changes the defaults (tiny sizes); what is given on the command line stays.
+    defaults = ({"steps": 10 * protocol.QUICK_STEPS, "eval_every": protocol.QUICK_EVAL_EVERY,
+                 "eval_episodes": protocol.QUICK_EVAL_EPISODES,
+                 "candidate_every": QUICK_CANDIDATE_EVERY} if args.quick else
+                {"steps": None, "eval_every": protocol.EVAL_EVERY,
+                 "eval_episodes": protocol.EVAL_EPISODES, "candidate_every": CANDIDATE_EVERY})
     fields: dict[str, Any] = {
-        "seeds": seeds, "steps": args.steps, "eval_every": args.eval_every,
-        "eval_episodes": args.eval_episodes, "candidate_every": args.candidate_every,
-        "scenarios": tuple(dict.fromkeys(args.scenarios)),
-        "algos": tuple(dict.fromkeys(args.algos)),
-    }
-    if args.quick:
-        fields.update(quick=True, steps=args.steps or 10 * protocol.QUICK_STEPS,
-                      eval_every=protocol.QUICK_EVAL_EVERY,
-                      eval_episodes=protocol.QUICK_EVAL_EPISODES,
-                      candidate_every=QUICK_CANDIDATE_EVERY)
+        name: default if getattr(args, name) is None else getattr(args, name)
+        for name, default in defaults.items()}
+    fields.update(seeds=seeds, quick=args.quick, scenarios=tuple(dict.fromkeys(args.scenarios)),
+                  algos=tuple(dict.fromkeys(args.algos)))
     settings = Settings(**fields)
     for scenario in settings.scenarios:  # every configuration validated before compiling
         for algo in settings.algos:

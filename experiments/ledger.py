@@ -34,6 +34,15 @@ def settings_record(settings: Any) -> dict[str, Any]:
     return json.loads(json.dumps(dataclasses.asdict(settings)))
 
 
+def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
+    """Whether two settings records make the same cells: the scenarios and learners an
+    invocation names choose which cells it makes, not what they hold, so the records of a
+    narrower or wider invocation into the same folder are kept beside each other."""
+    def cells_part(settings: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in settings.items() if k not in ("scenarios", "algos")}
+    return cells_part(record) == cells_part(other)
+
+
 def check_out(out: Path, force: bool) -> str | None:
     """Why ``out`` may not be written (``None`` if it may): committed results under
     ``experiments/results/`` are replaced only with ``--force``."""
@@ -128,7 +137,7 @@ class Ledger:
         self.settings = settings_record(settings)
         old = read_json(out / INVOCATIONS)
         self.previous = (list(old.get("invocations", []))
-                         if old and old.get("settings") == self.settings else [])
+                         if old and same_cells(old.get("settings", {}), self.settings) else [])
         self.start = time.perf_counter()
         self.current = {"command": command, "commit": git_commit(), "device": device_name(),
                         "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),

@@ -183,6 +183,8 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     wider = [*argv[:4], "turbulence", "strong_wind", *argv[5:]]  # the cell made above is kept
     assert search.main(wider) == 0
     assert "1 of 2 programs already done; 1 to train" in capsys.readouterr().err
+    runs = json.loads((out / "invocations.json").read_text())["invocations"]
+    assert [r["programs_trained"] for r in runs] == [1, 0, 1]  # the narrower ones' kept too
 
 
 def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
@@ -210,3 +212,9 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert budgets.main(wider) == 0
     assert "1 of 2 programs already done; 1 to train" in capsys.readouterr().err
     assert (out / "curves_maddpg.png").exists()
+    runs = json.loads((out / "invocations.json").read_text())["invocations"]
+    assert [r["programs_trained"] for r in runs] == [1, 0, 1]
+    other = [*wider, "--candidate-every", "400"]  # other cells: the records start again
+    assert budgets.main(other) == 0
+    runs = json.loads((out / "invocations.json").read_text())["invocations"]
+    assert [r["programs_trained"] for r in runs] == [2]
