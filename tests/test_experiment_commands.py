@@ -5,6 +5,7 @@ before learning starts, and an ``--out`` that would overwrite committed results.
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -35,6 +36,11 @@ def tables():
 @pytest.fixture(scope="module")
 def budgets():
     return load("budgets")
+
+
+@pytest.fixture(scope="module")
+def merge():
+    return load("merge")
 
 
 def refused(module, argv, capsys, *fragments):
@@ -118,3 +124,53 @@ def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
             capsys, "ends before learning starts")
     monkeypatch.setattr(tables, "SEARCHES", tmp_path / "no-searches")
     refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam")
+
+
+def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[str, str]) -> Path:
+    (path / "cells").mkdir(parents=True)
+    (path / "invocations.json").write_text(json.dumps({"settings": settings,
+                                                       "invocations": records}))
+    for name, text in cells.items():
+        (path / "cells" / name).write_text(text)
+    return path
+
+
+def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, capsys):
+    settings = {"seeds": [200, 201], "steps": None, "scenarios": ["turbulence"], "algos": ["iddpg"]}
+    wider = {**settings, "scenarios": ["turbulence", "strong_wind"]}
+    into = results_folder(tmp_path / "into", settings, [{"command": "a"}],
+                          {"turbulence-iddpg.json": "A"})
+    one = results_folder(tmp_path / "one", wider, [{"command": "b"}],
+                         {"turbulence-iddpg.json": "A", "strong_wind-iddpg.json": "B"})
+    two = results_folder(tmp_path / "two", settings, [{"command": "a"}, {"command": "c"}],
+                         {"nominal-iddpg.json": "C"})
+    assert merge.main([str(one), str(two), "--into", str(into)]) == 0
+    assert sorted(p.name for p in (into / "cells").iterdir()) == [
+        "nominal-iddpg.json", "strong_wind-iddpg.json", "turbulence-iddpg.json"]
+    ledger = json.loads((into / "invocations.json").read_text())
+    assert [r["command"] for r in ledger["invocations"]] == ["a", "b", "c"]
+    assert ledger["settings"] == settings
+    assert "2 cell(s) copied" in capsys.readouterr().out
+    assert merge.main([str(one), "--into", str(into)]) == 0  # again: nothing new
+    assert "0 cell(s) copied" in capsys.readouterr().out
+
+
+def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, capsys,
+                                                             monkeypatch):
+    import ledger
+
+    settings = {"seeds": [200, 201], "steps": None}
+    into = results_folder(tmp_path / "into", settings, [], {"turbulence-iddpg.json": "A"})
+    before = (into / "invocations.json").read_text()
+    other = results_folder(tmp_path / "other", {**settings, "steps": 5}, [], {"x.json": "X"})
+    refused(merge, [str(other), "--into", str(into)], capsys, "other settings")
+    clash = results_folder(tmp_path / "clash", settings, [{"command": "b"}],
+                           {"turbulence-iddpg.json": "B", "y.json": "Y"})
+    refused(merge, [str(clash), "--into", str(into)], capsys, "turbulence-iddpg.json differs")
+    (tmp_path / "empty").mkdir()
+    refused(merge, [str(tmp_path / "empty"), "--into", str(into)], capsys, "no invocations.json")
+    refused(merge, [str(into), "--into", str(into)], capsys, "--into must not be")
+    assert sorted(p.name for p in (into / "cells").iterdir()) == ["turbulence-iddpg.json"]
+    assert (into / "invocations.json").read_text() == before
+    monkeypatch.setattr(ledger, "RESULTS", tmp_path)
+    refused(merge, [str(clash), "--into", str(into)], capsys, "--into", "--force")

@@ -1,0 +1,108 @@
+"""Gather the cells of one experiment made in several folders (machines, processes) into one.
+
+    python experiments/merge.py runs/search-a runs/search-b --into runs/search/ccr
+    python experiments/merge.py /tmp/gpu/budgets --into experiments/results/budgets --force
+
+The searches, the tables and the budgets keep each finished program's cells in
+``<out>/cells/`` and every invocation in ``<out>/invocations.json``, so one grid can be
+spread over several invocations, each writing its own folder, at once. This copies into
+``--into`` the cells it lacks and appends the invocation records it does not hold.
+Nothing is written unless every source is compatible: the same experiment settings (the
+scenarios and learners named aside), and no cell held in two versions that differ. Then
+run the experiment's own command on ``--into`` again to rebuild its summary and figures;
+every cell exists, so it trains nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from ledger import INVOCATIONS, check_out, read_json, same_cells
+
+from ccrjax import cli
+from ccrjax.run.folder import write_atomic
+
+PROG = "python experiments/merge.py"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = cli.Parser(prog=PROG, description="Gather the cells and invocation records of one "
+                        "experiment made in several folders into one.")
+    parser.add_argument("sources", type=Path, nargs="+",
+                        help="results folders of the same experiment and settings")
+    parser.add_argument("--into", type=Path, required=True,
+                        help="the folder to complete (created if missing)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --into to be a folder of committed results")
+    return parser
+
+
+def ledger_of(folder: Path) -> dict[str, Any]:
+    ledger = read_json(folder / INVOCATIONS)
+    if not ledger or "settings" not in ledger:
+        raise cli.UsageError(f"{folder} holds no {INVOCATIONS}: not an experiment's results "
+                             "folder")
+    return ledger
+
+
+def plan(sources: list[Path], into: Path) -> tuple[dict[str, Path], list[dict], dict]:
+    """The cells to copy (name -> source file), the records to append and the target's
+    ledger; raises :class:`ccrjax.cli.UsageError` on anything incompatible."""
+    target = read_json(into / INVOCATIONS) if (into / INVOCATIONS).exists() else None
+    ledgers = [ledger_of(folder) for folder in sources]
+    reference = target or ledgers[0]
+    for folder, ledger in zip(sources, ledgers, strict=True):
+        if not same_cells(ledger["settings"], reference["settings"]):
+            raise cli.UsageError(f"{folder} was made with other settings than "
+                                 f"{into if target else sources[0]}: its cells would not match")
+    held = {path.name: path for path in sorted((into / "cells").glob("*.json"))}
+    copies: dict[str, Path] = {}
+    for folder in sources:
+        for path in sorted((folder / "cells").glob("*.json")):
+            known = copies.get(path.name) or held.get(path.name)
+            if known is None:
+                copies[path.name] = path
+            elif known.read_bytes() != path.read_bytes():
+                raise cli.UsageError(f"cell {path.name} differs between {known.parent.parent} "
+                                     f"and {folder}: keep one of them")
+    records = list(target["invocations"]) if target else []
+    appended = []
+    for ledger in ledgers:
+        for record in ledger.get("invocations", []):
+            if record not in records:
+                records.append(record)
+                appended.append(record)
+    merged = {"settings": reference["settings"], "invocations": records}
+    return copies, appended, merged
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    into = args.into
+    try:
+        if any(source.resolve() == into.resolve() for source in args.sources):
+            raise cli.UsageError("--into must not be one of the sources")
+        problem = check_out(into, args.force)
+        if problem:
+            raise cli.UsageError(problem.replace("--out", "--into"))
+        copies, appended, merged = plan(args.sources, into)
+    except cli.UsageError as error:
+        cli.fail(PROG, str(error))
+    (into / "cells").mkdir(parents=True, exist_ok=True)
+    for name, path in copies.items():
+        shutil.copyfile(path, into / "cells" / name)
+    write_atomic(into / INVOCATIONS, json.dumps(merged, indent=1) + "\n")
+    print(f"{len(copies)} cell(s) copied into {into / 'cells'}: "
+          f"{', '.join(copies) or 'none'}; {len(appended)} invocation record(s) added. "
+          "Run the experiment's command on it again to rebuild its summary (it trains "
+          "nothing for the cells it holds).")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
