@@ -117,21 +117,30 @@ def plateau_flag(returns: np.ndarray) -> bool | None:
 
 
 def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
+    """One scenario and learner's plain runs: the curves (checked by :func:`checked`)."""
     training = GridTraining(settings.config(scenario, algo), settings.seeds)
     training.compile(not settings.quick)
     runs = training.run()
-    steps = np.asarray(runs.history["env_steps"][0])
-    checks, proposed = check_budgets(steps, runs.history["return"], settings.candidates(algo))
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
-        "seeds": list(settings.seeds), "env_steps": steps.tolist(),
+        "budget": settings.budget(algo), "seeds": list(settings.seeds),
+        "env_steps": np.asarray(runs.history["env_steps"][0]).tolist(),
         "curves": {m: runs.history[m].tolist() for m in
                    ("return", "success_rate", "danger_frequency", "target_distance")},
-        "checks": checks, "proposed_budget": proposed,
-        "plateaued_at_budget": plateau_flag(runs.history["return"]),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
+
+
+def checked(cell: dict[str, Any], settings: Settings) -> dict[str, Any]:
+    """``cell`` with its plateau checks at the candidate budgets of ``settings``, the
+    proposed budget, and whether the whole curves end level (computed from the stored
+    curves, so other candidates need no training)."""
+    returns = np.asarray(cell["curves"]["return"])
+    checks, proposed = check_budgets(np.asarray(cell["env_steps"]), returns,
+                                     settings.candidates(cell["algo"]))
+    return {**cell, "checks": checks, "proposed_budget": proposed,
+            "plateaued_at_budget": plateau_flag(returns)}
 
 
 def final_stats(cell: dict[str, Any], metric: str) -> dict[str, Any]:
@@ -248,6 +257,11 @@ def settings_from(args: argparse.Namespace) -> Settings:
     for scenario in settings.scenarios:  # every configuration validated before compiling
         for algo in settings.algos:
             settings.config(scenario, algo)
+    for algo in settings.algos:
+        if not settings.candidates(algo):
+            raise cli.UsageError(
+                f"--candidate-every {settings.candidate_every:,} is above the budget "
+                f"{settings.budget(algo):,} of {algo}: no candidate budget would be checked")
     return settings
 
 
@@ -264,10 +278,12 @@ def main(argv: list[str] | None = None) -> int:
         cells[(scenario, algo)] = cell
         ledger.record(index + 1)
         log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
-        log(f"  {algo} {scenario}: plateaued at the end {cell['plateaued_at_budget']}, "
-            f"proposed budget {cell['proposed_budget']}")
+        found = checked(cell, settings)
+        log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
+            f"proposed budget {found['proposed_budget']}")
     ledger.record(len(todo), finished=True)
-    ordered = {(s, a): cells[(s, a)] for a in settings.algos for s in settings.scenarios}
+    ordered = {(s, a): checked(cells[(s, a)], settings)
+               for a in settings.algos for s in settings.scenarios}
     result = {
         "settings": settings_record(settings),
         "budgets": {a: settings.budget(a) for a in settings.algos},

@@ -23,6 +23,7 @@ import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.training import ALGOS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 INVOCATIONS = "invocations.json"
@@ -34,13 +35,45 @@ def settings_record(settings: Any) -> dict[str, Any]:
     return json.loads(json.dumps(dataclasses.asdict(settings)))
 
 
+# Settings that choose which cells an invocation makes, or how they are summarised, but
+# not what a cell holds: a cell made by a narrower or wider invocation (or one checked
+# against other candidate budgets) is kept, not trained again.
+NOT_IN_CELLS = ("scenarios", "algos", "candidate_every")
+
+
+def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
+                  ) -> dict[str, Any]:
+    """What a cell of learner ``algo`` depends on: the settings ``record`` less
+    :data:`NOT_IN_CELLS`, with ``steps`` replaced by the budget its runs trained for
+    (``budget``, else ``steps`` or the protocol's budget of ``algo``)."""
+    kept = {k: v for k, v in record.items() if k not in (*NOT_IN_CELLS, "steps")}
+    kept["budget"] = protocol.budget(algo, record.get("steps")) if budget is None else budget
+    return kept
+
+
+def cell_budget(cell: dict[str, Any]) -> int | None:
+    """The budget a stored cell trained for: its ``budget``, or for cells written before
+    that was recorded, the environment steps of its last evaluation."""
+    if "budget" in cell:
+        return cell["budget"]
+    steps = cell.get("env_steps") or (cell.get("history") or {}).get("env_steps")
+    while isinstance(steps, list) and steps and isinstance(steps[-1], list):
+        steps = steps[-1]
+    return int(steps[-1]) if steps else None
+
+
+def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:
+    """Whether the stored ``cell`` is what settings ``record`` would make."""
+    if not cell or not isinstance(cell.get("settings"), dict) or "algo" not in cell:
+        return False
+    algo = cell["algo"]
+    return cell_identity(cell["settings"], algo, cell_budget(cell)) == cell_identity(record, algo)
+
+
 def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
-    """Whether two settings records make the same cells: the scenarios and learners an
-    invocation names choose which cells it makes, not what they hold, so the records of a
-    narrower or wider invocation into the same folder are kept beside each other."""
-    def cells_part(settings: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in settings.items() if k not in ("scenarios", "algos")}
-    return cells_part(record) == cells_part(other)
+    """Whether two settings records make the same cells, for every learner (so that the
+    invocation records of a narrower or wider invocation into a folder stay together)."""
+    return all(cell_identity(record, algo) == cell_identity(other, algo) for algo in ALGOS)
 
 
 def check_out(out: Path, force: bool) -> str | None:
@@ -64,7 +97,7 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
     compiles; then the compilation cache, the folder and this invocation's record."""
     try:
         settings = settings_of()
-        problem = check_out(out, force)
+        problem = check_out(out, force) or check_experiment(out, prog)
         if problem:
             raise cli.UsageError(problem)
     except (cli.UsageError, ValueError) as error:
@@ -72,7 +105,7 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
     cli.enable_compilation_cache(cli.default_cache_dir())
     out.mkdir(parents=True, exist_ok=True)
     command = " ".join([prog, *(argv if argv is not None else sys.argv[1:])])
-    ledger = Ledger(out, settings, command)
+    ledger = Ledger(out, settings, command, prog)
     ledger.record(0)
     return settings, ledger
 
@@ -82,15 +115,6 @@ def cell_path(out: Path, scenario: str, algo: str) -> Path:
     return out / "cells" / f"{scenario}-{algo}.json"
 
 
-def cell_settings(record: dict[str, Any], algo: str) -> dict[str, Any]:
-    """What one scenario-and-learner cell depends on, from a settings record: the lists of
-    scenarios and learners an invocation named do not change a cell, so a cell made by a
-    narrower or a wider invocation with the same settings is kept, not trained again."""
-    kept = {k: v for k, v in record.items() if k not in ("scenarios", "algos", "steps")}
-    kept["budget"] = protocol.budget(algo, record["steps"])
-    return kept
-
-
 def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
                ) -> tuple[dict[tuple[str, str], dict], list[tuple[str, str]], Progress]:
     """The cells already made with ``settings`` (a dataclass with ``scenarios``, ``algos``,
@@ -98,10 +122,10 @@ def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
     runs of ``budget(algo)`` steps each, described by ``runs_text``), and their progress."""
     pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
     cells, todo = {}, []
+    record = settings_record(settings)
     for scenario, algo in pairs:
         cell = read_json(cell_path(out, scenario, algo))
-        wanted = cell_settings(settings_record(settings), algo)
-        if cell and cell_settings(cell["settings"], algo) == wanted:
+        if cell_is_current(cell, record):
             cells[(scenario, algo)] = cell
         else:
             todo.append((scenario, algo))
@@ -128,16 +152,42 @@ def read_json(path: Path) -> dict | None:
         return None
 
 
+def read_ledger(folder: Path) -> dict[str, Any] | None:
+    """``folder``'s invocation records (``None`` if it has none); raises
+    :class:`ccrjax.cli.UsageError` if the file is there but is not such a record."""
+    path = folder / INVOCATIONS
+    if not path.exists():
+        return None
+    ledger = read_json(path)
+    if (not isinstance(ledger, dict) or not isinstance(ledger.get("settings"), dict)
+            or not isinstance(ledger.get("invocations"), list)
+            or not all(isinstance(record, dict) for record in ledger["invocations"])):
+        raise cli.UsageError(f"{path} is not a record of invocations (unreadable, or without "
+                             "settings and a list of invocations): move it away first")
+    return ledger
+
+
+def check_experiment(folder: Path, experiment: str) -> str | None:
+    """Why ``folder`` cannot take ``experiment``'s results (``None`` if it can): it holds
+    another experiment's (the searches and the budgets name their cells alike)."""
+    ledger = read_ledger(folder)
+    found = ledger.get("experiment") if ledger else None
+    if found is not None and found != experiment:
+        return f"{folder} holds the results of {found}, not {experiment}"
+    return None
+
+
 class Ledger:
     """The invocation records of ``out`` made with ``settings`` (a dataclass): the earlier
     ones (dropped when the settings changed) and this one, kept up to date."""
 
-    def __init__(self, out: Path, settings: Any, command: str) -> None:
+    def __init__(self, out: Path, settings: Any, command: str, experiment: str) -> None:
         self.out = out
+        self.experiment = experiment
         self.settings = settings_record(settings)
-        old = read_json(out / INVOCATIONS)
-        self.previous = (list(old.get("invocations", []))
-                         if old and same_cells(old.get("settings", {}), self.settings) else [])
+        old = read_ledger(out)
+        self.previous = (list(old["invocations"])
+                         if old and same_cells(old["settings"], self.settings) else [])
         self.start = time.perf_counter()
         self.current = {"command": command, "commit": git_commit(), "device": device_name(),
                         "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),
@@ -151,8 +201,8 @@ class Ledger:
         self.current.update(wall_time_s=time.perf_counter() - self.start,
                             programs_trained=trained, finished=finished)
         write_atomic(self.out / INVOCATIONS,
-                     json.dumps({"settings": self.settings, "invocations": self.invocations},
-                                indent=1) + "\n")
+                     json.dumps({"experiment": self.experiment, "settings": self.settings,
+                                 "invocations": self.invocations}, indent=1) + "\n")
 
 
 def duration(seconds: float) -> str:

@@ -17,12 +17,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
-from ledger import INVOCATIONS, check_out, read_json, same_cells
+from ledger import (
+    INVOCATIONS,
+    cell_is_current,
+    check_out,
+    read_json,
+    read_ledger,
+    same_cells,
+)
 
 from ccrjax import cli
 from ccrjax.run.folder import write_atomic
@@ -43,42 +49,65 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def ledger_of(folder: Path) -> dict[str, Any]:
-    ledger = read_json(folder / INVOCATIONS)
-    if not ledger or "settings" not in ledger:
+    ledger = read_ledger(folder)
+    if ledger is None:
         raise cli.UsageError(f"{folder} holds no {INVOCATIONS}: not an experiment's results "
                              "folder")
     return ledger
 
 
-def plan(sources: list[Path], into: Path) -> tuple[dict[str, Path], list[dict], dict]:
-    """The cells to copy (name -> source file), the records to append and the target's
-    ledger; raises :class:`ccrjax.cli.UsageError` on anything incompatible."""
-    target = read_json(into / INVOCATIONS) if (into / INVOCATIONS).exists() else None
+def record_key(record: dict[str, Any]) -> tuple:
+    """One invocation, however often its record was copied: a record copied while the
+    invocation ran and again after it ended has the same key."""
+    return tuple(record.get(k) for k in ("command", "commit", "device", "date"))
+
+
+def plan(sources: list[Path], into: Path
+         ) -> tuple[dict[str, Path], list[str], int, dict[str, Any]]:
+    """The cells to copy (name -> source file), the stale cells left out (made with other
+    settings), the number of new invocation records and the merged ledger; raises
+    :class:`ccrjax.cli.UsageError` on anything incompatible."""
+    target = read_ledger(into)
     ledgers = [ledger_of(folder) for folder in sources]
     reference = target or ledgers[0]
+    name = into if target else sources[0]
+    # Records written before the experiment was named in them fit any experiment.
+    experiment = next((x["experiment"] for x in [reference, *ledgers] if x.get("experiment")),
+                      None)
     for folder, ledger in zip(sources, ledgers, strict=True):
+        if ledger.get("experiment", experiment) != experiment:
+            raise cli.UsageError(f"{folder} holds the results of {ledger['experiment']}, "
+                                 f"not of {experiment}")
         if not same_cells(ledger["settings"], reference["settings"]):
-            raise cli.UsageError(f"{folder} was made with other settings than "
-                                 f"{into if target else sources[0]}: its cells would not match")
+            raise cli.UsageError(f"{folder} was made with other settings than {name}: its "
+                                 "cells would not match")
     held = {path.name: path for path in sorted((into / "cells").glob("*.json"))}
     copies: dict[str, Path] = {}
+    stale: list[str] = []
     for folder in sources:
         for path in sorted((folder / "cells").glob("*.json")):
+            if not cell_is_current(read_json(path), reference["settings"]):
+                stale.append(str(path))
+                continue
             known = copies.get(path.name) or held.get(path.name)
             if known is None:
                 copies[path.name] = path
             elif known.read_bytes() != path.read_bytes():
                 raise cli.UsageError(f"cell {path.name} differs between {known.parent.parent} "
                                      f"and {folder}: keep one of them")
-    records = list(target["invocations"]) if target else []
-    appended = []
+    records = {record_key(r): r for r in (target["invocations"] if target else [])}
+    new = 0
     for ledger in ledgers:
-        for record in ledger.get("invocations", []):
-            if record not in records:
-                records.append(record)
-                appended.append(record)
-    merged = {"settings": reference["settings"], "invocations": records}
-    return copies, appended, merged
+        for record in ledger["invocations"]:
+            key = record_key(record)
+            old = records.get(key)
+            new += old is None
+            if old is None or record.get("wall_time_s", 0) > old.get("wall_time_s", 0):
+                records[key] = record  # the later copy of a record
+    merged = {**reference, "invocations": list(records.values())}
+    if experiment:
+        merged["experiment"] = experiment
+    return copies, stale, new, merged
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,17 +119,19 @@ def main(argv: list[str] | None = None) -> int:
         problem = check_out(into, args.force)
         if problem:
             raise cli.UsageError(problem.replace("--out", "--into"))
-        copies, appended, merged = plan(args.sources, into)
+        copies, stale, new, merged = plan(args.sources, into)
     except cli.UsageError as error:
         cli.fail(PROG, str(error))
     (into / "cells").mkdir(parents=True, exist_ok=True)
     for name, path in copies.items():
-        shutil.copyfile(path, into / "cells" / name)
+        write_atomic(into / "cells" / name, path.read_text())
     write_atomic(into / INVOCATIONS, json.dumps(merged, indent=1) + "\n")
+    if stale:
+        print(f"left out {len(stale)} cell(s) made with other settings: {', '.join(stale)}")
     print(f"{len(copies)} cell(s) copied into {into / 'cells'}: "
-          f"{', '.join(copies) or 'none'}; {len(appended)} invocation record(s) added. "
-          "Run the experiment's command on it again to rebuild its summary (it trains "
-          "nothing for the cells it holds).")
+          f"{', '.join(copies) or 'none'}; {new} invocation record(s) added. Run the "
+          "experiment's command on it again, naming the scenarios and learners to summarise, "
+          "to rebuild its summary (it trains nothing for the cells it holds).")
     return 0
 
 

@@ -99,6 +99,7 @@ def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
         levelled = {"plateaued": None, "why": str(error)}
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
+        "budget": settings.budget(algo),
         "parameter": name, "grid_seeds": grid_seeds, "grid_values": grid_values,
         "rows": search_rows(runs, values, grid_values, seeds),
         "env_steps": runs.history["env_steps"][0].tolist(), "history": history,

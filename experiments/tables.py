@@ -160,7 +160,11 @@ def cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
 def read_cell(path: Path, settings: Settings) -> dict | None:
     """A finished cell made with ``settings``, or None."""
     cell = read_json(path)
-    return cell if cell and cell.get("settings") == settings_record(settings) else None
+    if (cell and cell.get("settings") == settings_record(settings)
+            and cell.get("algo") in protocol.BUDGETS
+            and cell.get("budget") == settings.budget(cell["algo"])):
+        return cell
+    return None
 
 
 def build_training(job: Job, settings: Settings) -> GridTraining:
@@ -193,7 +197,8 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
         final = part.final
         cell = {
             "scenario": job.scenario, "algo": job.algo, "variant": variant,
-            "settings": settings_record(settings), "seeds": part.seeds,
+            "settings": settings_record(settings), "budget": settings.budget(job.algo),
+            "seeds": part.seeds,
             "params": {k: [float(x) for x in v] for k, v in part.params.items()},
             "final": {m: [float(x) for x in final[m]] for m in METRICS},
             "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},

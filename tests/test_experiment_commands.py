@@ -77,6 +77,7 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     (["--seed-offset", "99"], ("selection seeds 100-102",)),
     (["--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
     (["--candidate-every", "0"], ("--candidate-every",)),
+    (["--candidate-every", "4000000"], ("above the budget 3,000,000 of iddpg",)),
 ])
 def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -126,33 +127,56 @@ def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
     refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam")
 
 
-def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[str, str]) -> Path:
+def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[str, str],
+                   experiment: str = "python experiments/budgets.py") -> Path:
+    """A made-up results folder: ``cells`` maps a file name to its content's label."""
     (path / "cells").mkdir(parents=True)
-    (path / "invocations.json").write_text(json.dumps({"settings": settings,
-                                                       "invocations": records}))
-    for name, text in cells.items():
-        (path / "cells" / name).write_text(text)
+    (path / "invocations.json").write_text(json.dumps(
+        {"experiment": experiment, "settings": settings, "invocations": records}))
+    for name, label in cells.items():
+        cell = {"algo": "iddpg", "settings": settings, "budget": 3_000_000, "label": label}
+        (path / "cells" / name).write_text(json.dumps(cell))
     return path
+
+
+def record(command: str, wall_time_s: float = 1.0) -> dict:
+    return {"command": command, "commit": "c", "device": "cpu", "date": "d",
+            "wall_time_s": wall_time_s}
 
 
 def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, capsys):
     settings = {"seeds": [200, 201], "steps": None, "scenarios": ["turbulence"], "algos": ["iddpg"]}
-    wider = {**settings, "scenarios": ["turbulence", "strong_wind"]}
-    into = results_folder(tmp_path / "into", settings, [{"command": "a"}],
+    wider = {**settings, "scenarios": ["turbulence", "strong_wind"], "steps": 3_000_000}
+    into = results_folder(tmp_path / "into", settings, [record("a")],
                           {"turbulence-iddpg.json": "A"})
-    one = results_folder(tmp_path / "one", wider, [{"command": "b"}],
-                         {"turbulence-iddpg.json": "A", "strong_wind-iddpg.json": "B"})
-    two = results_folder(tmp_path / "two", settings, [{"command": "a"}, {"command": "c"}],
+    one = results_folder(tmp_path / "one", wider, [record("b", 5.0)],
+                         {"strong_wind-iddpg.json": "B"})
+    copied = "turbulence-iddpg.json"  # a cell the folder started from
+    (one / "cells" / copied).write_text((into / "cells" / copied).read_text())
+    two = results_folder(tmp_path / "two", settings, [record("a"), record("b", 2.0),
+                                                      record("c")],
                          {"nominal-iddpg.json": "C"})
+    old = tmp_path / "two" / "cells" / "hazard-iddpg.json"  # made for a budget of 2M
+    old.write_text(json.dumps({"algo": "iddpg", "settings": settings, "env_steps": [0, 2e6]}))
     assert merge.main([str(one), str(two), "--into", str(into)]) == 0
     assert sorted(p.name for p in (into / "cells").iterdir()) == [
         "nominal-iddpg.json", "strong_wind-iddpg.json", "turbulence-iddpg.json"]
     ledger = json.loads((into / "invocations.json").read_text())
-    assert [r["command"] for r in ledger["invocations"]] == ["a", "b", "c"]
+    # One record per invocation, the later copy of "b" (it ran on after the first copy).
+    assert [(r["command"], r["wall_time_s"]) for r in ledger["invocations"]] == [
+        ("a", 1.0), ("b", 5.0), ("c", 1.0)]
     assert ledger["settings"] == settings
-    assert "2 cell(s) copied" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "2 cell(s) copied" in out and "2 invocation record(s) added" in out
+    assert "left out 1 cell(s) made with other settings" in out and "hazard-iddpg" in out
     assert merge.main([str(one), "--into", str(into)]) == 0  # again: nothing new
     assert "0 cell(s) copied" in capsys.readouterr().out
+    unnamed = json.loads((into / "invocations.json").read_text())
+    del unnamed["experiment"]  # written before experiments were named in their records
+    (into / "invocations.json").write_text(json.dumps(unnamed))
+    assert merge.main([str(two), "--into", str(into)]) == 0
+    named = json.loads((into / "invocations.json").read_text())
+    assert named["experiment"] == "python experiments/budgets.py"
 
 
 def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, capsys,
@@ -164,13 +188,30 @@ def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, cap
     before = (into / "invocations.json").read_text()
     other = results_folder(tmp_path / "other", {**settings, "steps": 5}, [], {"x.json": "X"})
     refused(merge, [str(other), "--into", str(into)], capsys, "other settings")
-    clash = results_folder(tmp_path / "clash", settings, [{"command": "b"}],
+    clash = results_folder(tmp_path / "clash", settings, [record("b")],
                            {"turbulence-iddpg.json": "B", "y.json": "Y"})
     refused(merge, [str(clash), "--into", str(into)], capsys, "turbulence-iddpg.json differs")
+    search = results_folder(tmp_path / "search", settings, [], {},
+                            experiment="python experiments/search.py")
+    refused(merge, [str(search), "--into", str(into)], capsys, "results of python "
+            "experiments/search.py, not of python experiments/budgets.py")
     (tmp_path / "empty").mkdir()
     refused(merge, [str(tmp_path / "empty"), "--into", str(into)], capsys, "no invocations.json")
+    broken = results_folder(tmp_path / "broken", settings, [], {})
+    for text in ("{not json", "[]", '{"settings": {}, "invocations": null}',
+                 '{"settings": {}, "invocations": ["x"]}'):
+        (broken / "invocations.json").write_text(text)
+        refused(merge, [str(broken), "--into", str(into)], capsys, "is not a record")
     refused(merge, [str(into), "--into", str(into)], capsys, "--into must not be")
     assert sorted(p.name for p in (into / "cells").iterdir()) == ["turbulence-iddpg.json"]
     assert (into / "invocations.json").read_text() == before
     monkeypatch.setattr(ledger, "RESULTS", tmp_path)
     refused(merge, [str(clash), "--into", str(into)], capsys, "--into", "--force")
+
+
+def test_an_experiment_refuses_a_folder_of_another_experiment(search, budgets, tmp_path,
+                                                               capsys):
+    out = results_folder(tmp_path / "search", {"seeds": [100, 101]}, [], {},
+                         experiment="python experiments/search.py")
+    refused(budgets, ["--out", str(out)], capsys, "holds the results of python "
+            "experiments/search.py, not python experiments/budgets.py")

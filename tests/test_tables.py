@@ -214,7 +214,12 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert (out / "curves_maddpg.png").exists()
     runs = json.loads((out / "invocations.json").read_text())["invocations"]
     assert [r["programs_trained"] for r in runs] == [1, 0, 1]
-    other = [*wider, "--candidate-every", "400"]  # other cells: the records start again
+    other = [*wider, "--candidate-every", "1000"]  # other checks of the same curves
     assert budgets.main(other) == 0
+    assert "2 of 2 programs already done; 0 to train" in capsys.readouterr().err
+    cell = json.loads((out / "budgets.json").read_text())["cells"][0]
+    assert [c["budget"] for c in cell["checks"]] == [1000, 2000, 3000, 4000]
+    longer = [*wider, "--steps", "4200"]  # other cells: trained again, records start again
+    assert budgets.main(longer) == 0
     runs = json.loads((out / "invocations.json").read_text())["invocations"]
     assert [r["programs_trained"] for r in runs] == [2]
