@@ -19,7 +19,8 @@ Each scenario and learner is one vmapped program. Its cell is written to
 ``<out>/cells/<scenario>-<algo>.json`` when it finishes (curves, checks, proposal, wall
 time, device, commit); a re-run skips the cells made with the same settings, whatever
 scenarios and learners it names, so the grid can be spread over invocations and machines.
-Then ``budgets.json`` (every cell and invocation), ``budgets.md`` and ``curves_<algo>.png``
+Then ``budgets.json`` (every cell of the folder made with these settings, whichever
+invocation made it, and every invocation), ``budgets.md`` and ``curves_<algo>.png``
 (return, success and danger along training, one line per scenario).
 """
 
@@ -36,12 +37,14 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    cell_is_current,
     cell_path,
     device_name,
     duration,
     log,
     open_experiment,
     plan_pairs,
+    read_json,
     settings_record,
 )
 
@@ -282,8 +285,15 @@ def main(argv: list[str] | None = None) -> int:
         log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
             f"proposed budget {found['proposed_budget']}")
     ledger.record(len(todo), finished=True)
+    # The summary reports every cell of the folder made with these settings, whichever
+    # invocation made it (the budgets select nothing, so nothing depends on which are named).
+    record = settings_record(settings)
+    for path in sorted((out / "cells").glob("*.json")):
+        cell = read_json(path)
+        if cell_is_current(cell, record):
+            cells.setdefault((cell["scenario"], cell["algo"]), cell)
     ordered = {(s, a): checked(cells[(s, a)], settings)
-               for a in settings.algos for s in settings.scenarios}
+               for a in ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
     result = {
         "settings": settings_record(settings),
         "budgets": {a: settings.budget(a) for a in settings.algos},

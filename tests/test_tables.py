@@ -214,6 +214,10 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert (out / "curves_maddpg.png").exists()
     runs = json.loads((out / "invocations.json").read_text())["invocations"]
     assert [r["programs_trained"] for r in runs] == [1, 0, 1]
+    assert budgets.main(argv) == 0  # a narrower invocation still reports every cell
+    cells = json.loads((out / "budgets.json").read_text())["cells"]
+    assert [(c["scenario"], c["algo"]) for c in cells] == [("turbulence", "iddpg"),
+                                                            ("turbulence", "maddpg")]
     other = [*wider, "--candidate-every", "1000"]  # other checks of the same curves
     assert budgets.main(other) == 0
     assert "2 of 2 programs already done; 0 to train" in capsys.readouterr().err
