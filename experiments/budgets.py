@@ -157,7 +157,8 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     lines = [
         "# Budgets of the plain learners",
         "",
-        f"Budget seeds {settings['seeds']}; {result['budgets']} environment steps per seed; "
+        f"Budget seeds {settings['seeds']}; environment steps per seed: "
+        + ", ".join(f"{steps:,} ({algo})" for algo, steps in result["budgets"].items()) + "; "
         f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "
         f"episodes per seed; candidate budgets every {settings['candidate_every']:,} steps. "
         "Plateaued: the mean over seeds of the last 20% of evaluations lies within the 95% "
@@ -296,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
                for a in ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
     result = {
         "settings": settings_record(settings),
-        "budgets": {a: settings.budget(a) for a in settings.algos},
+        "budgets": {a: settings.budget(a) for a in dict.fromkeys(a for _, a in ordered)},
         "invocations": ledger.invocations,
         "cells": list(ordered.values()),
     }
