@@ -24,9 +24,10 @@ BUDGET_SEED_OFFSET = 200  # experiments/budgets.py
 # (experiments/budgets.py, seeds 200-202, on an H100 before the obstacle's corner fix):
 # at 3M, IDDPG and MADDPG had plateaued in strong wind (from 2.75-3M) and IDDPG on the
 # obstacle (2.5M); MADDPG on the obstacle and both in turbulence were still creeping up.
-# MAAC at 2M had plateaued in turbulence and wind but not on the obstacle. Every table
-# cell records whether its plain learner's return plateaued at this budget on the
-# tables' seeds, and the README says where it did not.
+# MAAC at 2M had plateaued in turbulence and wind but not on the obstacle. That run was not
+# kept; experiments/results/budgets/ re-checks the current scenarios (same seeds, 3M).
+# Every table cell records whether its plain learner's return plateaued at this budget on
+# the tables' seeds, and the README says where it did not.
 BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 EVAL_EVERY = 100_000
 EVAL_EPISODES = 64
