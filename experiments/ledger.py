@@ -64,7 +64,7 @@ def cell_budget(cell: dict[str, Any]) -> int | None:
 
 def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:
     """Whether the stored ``cell`` is what settings ``record`` would make."""
-    if not cell or not isinstance(cell.get("settings"), dict) or "algo" not in cell:
+    if not cell or not isinstance(cell.get("settings"), dict) or cell.get("algo") not in ALGOS:
         return False
     algo = cell["algo"]
     return cell_identity(cell["settings"], algo, cell_budget(cell)) == cell_identity(record, algo)

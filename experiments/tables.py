@@ -63,6 +63,7 @@ from ledger import (
     RESULTS,
     Ledger,
     Progress,
+    cell_is_current,
     device_name,
     duration,
     log,
@@ -160,11 +161,7 @@ def cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
 def read_cell(path: Path, settings: Settings) -> dict | None:
     """A finished cell made with ``settings``, or None."""
     cell = read_json(path)
-    if (cell and cell.get("settings") == settings_record(settings)
-            and cell.get("algo") in protocol.BUDGETS
-            and cell.get("budget") == settings.budget(cell["algo"])):
-        return cell
-    return None
+    return cell if cell_is_current(cell, settings_record(settings)) else None
 
 
 def build_training(job: Job, settings: Settings) -> GridTraining:
