@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     ordered = {(s, a): checked(cells[(s, a)], settings)
                for a in ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
     result = {
-        "settings": settings_record(settings),
+        "settings": record,
         "budgets": {a: settings.budget(a) for a in dict.fromkeys(a for _, a in ordered)},
         "invocations": ledger.invocations,
         "cells": list(ordered.values()),

@@ -81,7 +81,9 @@ def plan(sources: list[Path], into: Path
         if not same_cells(ledger["settings"], reference["settings"]):
             raise cli.UsageError(f"{folder} was made with other settings than {name}: its "
                                  "cells would not match")
-    held = {path.name: path for path in sorted((into / "cells").glob("*.json"))}
+    # A cell of the target made with other settings is replaced, not defended.
+    held = {path.name: path for path in sorted((into / "cells").glob("*.json"))
+            if cell_is_current(read_json(path), reference["settings"])}
     copies: dict[str, Path] = {}
     stale: list[str] = []
     for folder in sources:

@@ -158,11 +158,13 @@ def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, 
                          {"nominal-iddpg.json": "C"})
     old = tmp_path / "two" / "cells" / "hazard-iddpg.json"  # made for a budget of 2M
     old.write_text(json.dumps({"algo": "iddpg", "settings": settings, "env_steps": [0, 2e6]}))
+    (into / "cells" / "nominal-iddpg.json").write_text(old.read_text())  # replaced by two's
     assert merge.main([str(one), str(two), "--into", str(into)]) == 0
     assert sorted(p.name for p in (into / "cells").iterdir()) == [
         "nominal-iddpg.json", "strong_wind-iddpg.json", "turbulence-iddpg.json"]
     ledger = json.loads((into / "invocations.json").read_text())
     # One record per invocation, the later copy of "b" (it ran on after the first copy).
+    assert json.loads((into / "cells" / "nominal-iddpg.json").read_text())["label"] == "C"
     assert [(r["command"], r["wall_time_s"]) for r in ledger["invocations"]] == [
         ("a", 1.0), ("b", 5.0), ("c", 1.0)]
     assert ledger["settings"] == settings
