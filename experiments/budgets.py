@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    Partial,
+    add_checkpoint_option,
     cell_is_current,
     cell_path,
     device_name,
@@ -119,11 +121,12 @@ def plateau_flag(returns: np.ndarray) -> bool | None:
         return None
 
 
-def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
+               ) -> dict[str, Any]:
     """One scenario and learner's plain runs: the curves (checked by :func:`checked`)."""
     training = GridTraining(settings.config(scenario, algo), settings.seeds)
     training.compile(not settings.quick)
-    runs = training.run()
+    runs = partial.train(training, f"{scenario}-{algo}")
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "seeds": list(settings.seeds),
@@ -235,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "experiments/results/budgets)")
     parser.add_argument("--force", action="store_true",
                         help="allow --out to be a folder of committed results")
+    add_checkpoint_option(parser)
     return parser
 
 
@@ -276,9 +280,11 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out
     cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
                                        f"{len(settings.seeds)} seeds each")
+    partial = Partial(out, args.checkpoint_minutes)
     for index, (scenario, algo) in enumerate(todo):
-        cell = train_cell(settings, scenario, algo)
+        cell = train_cell(settings, scenario, algo, partial)
         write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        partial.discard(f"{scenario}-{algo}")
         cells[(scenario, algo)] = cell
         ledger.record(index + 1)
         log(progress.finished(index, cell["train_s"] + cell["compile_s"]))

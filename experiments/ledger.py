@@ -2,8 +2,10 @@
 replaced, the record of each invocation, and progress with an estimate of the time left.
 
 An experiment trains programs (one scenario and learner each) and writes each finished
-program's cells atomically, so a killed invocation loses only the program in progress
-and the next one skips what is done. Every invocation is recorded in
+program's cells atomically, so the next invocation skips what is done. The program in
+training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/<cell>/``
+(:class:`Partial`, :mod:`ccrjax.run.grid_checkpoint`) and resumed from there, exactly, so a
+killed invocation loses at most those minutes. Every invocation is recorded in
 ``<out>/invocations.json`` (command, commit, device, date, wall time, programs trained,
 whether it finished), rewritten after each program, so a killed one keeps its record.
 """
@@ -23,10 +25,44 @@ import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.run.grid_checkpoint import discard, train_resumably
 from ccrjax.training import ALGOS
+from ccrjax.training.grid import GridRuns, GridTraining
 
 RESULTS = Path(__file__).resolve().parent / "results"
 INVOCATIONS = "invocations.json"
+PARTIAL = "partial"  # <out>/partial/<cell>/: the program in training's checkpoint
+CHECKPOINT_MINUTES = 15.0
+
+
+def add_checkpoint_option(parser: Any) -> None:
+    """``--checkpoint-minutes``, the same in every experiment."""
+    parser.add_argument("--checkpoint-minutes", type=cli.float_in(0.0),
+                        default=CHECKPOINT_MINUTES,
+                        help=f"save the program in training at most every this many minutes "
+                        f"(into <out>/{PARTIAL}/), so that a killed invocation resumes it "
+                        "where it was; 0: never (default: %(default)s)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Partial:
+    """Where and how often an experiment checkpoints the program it is training."""
+
+    out: Path
+    minutes: float = CHECKPOINT_MINUTES
+
+    def folder(self, name: str) -> Path:
+        return self.out / PARTIAL / name
+
+    def train(self, training: GridTraining, name: str) -> GridRuns:
+        """``training``'s results, resumed from cell ``name``'s checkpoint if there is one."""
+        return train_resumably(training, self.folder(name), self.minutes * 60.0, log)
+
+    def discard(self, name: str) -> None:
+        """Deletes cell ``name``'s checkpoint once its results are written."""
+        discard(self.folder(name))
+        if (self.out / PARTIAL).is_dir() and not any((self.out / PARTIAL).iterdir()):
+            (self.out / PARTIAL).rmdir()
 
 
 def settings_record(settings: Any) -> dict[str, Any]:

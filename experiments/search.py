@@ -34,6 +34,8 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    Partial,
+    add_checkpoint_option,
     cell_path,
     device_name,
     duration,
@@ -83,13 +85,14 @@ class Settings:
         return [0.0, *self.values]
 
 
-def train_cell(settings: Settings, scenario: str, algo: str) -> dict[str, Any]:
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
+               ) -> dict[str, Any]:
     config = settings.config(scenario, algo)
     values, seeds = settings.grid_values, list(settings.seeds)
     name, grid_seeds, grid_values = search_grid(config, values, seeds)
     training = GridTraining(config, grid_seeds, {name: grid_values})
     training.compile(not settings.quick)
-    runs = training.run()
+    runs = partial.train(training, f"{scenario}-{algo}")
     history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
                                                       "danger_frequency")}
     reference = runs.history["return"][np.asarray(grid_values) == 0.0]
@@ -214,6 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "go to experiments/results/search/<variant>)")
     parser.add_argument("--force", action="store_true",
                         help="allow --out to be a folder of committed results")
+    add_checkpoint_option(parser)
     return parser
 
 
@@ -254,9 +258,11 @@ def main(argv: list[str] | None = None) -> int:
     cells, todo, progress = plan_pairs(
         settings, out, runs, f"{len(settings.grid_values)} values x {len(settings.seeds)} "
         f"seeds = {runs} runs each")
+    partial = Partial(out, args.checkpoint_minutes)
     for index, (scenario, algo) in enumerate(todo):
-        cell = train_cell(settings, scenario, algo)
+        cell = train_cell(settings, scenario, algo, partial)
         write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        partial.discard(f"{scenario}-{algo}")
         cells[(scenario, algo)] = cell
         ledger.record(index + 1)
         log(progress.finished(index, cell["train_s"] + cell["compile_s"]))

@@ -22,7 +22,9 @@ and MAAC about 250 environment steps per second. The grid is 30 runs of 3,000,00
 scenario and learner, so on that CPU it would take about 11 h (IDDPG) + up to 19 h
 (MADDPG) + up to 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about
 460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000). Cells
-are resumable across invocations, so the grid can be spread over several.
+are resumable across invocations, so the grid can be spread over several; the program in
+training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
+from there (:mod:`ccrjax.run.grid_checkpoint`).
 
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
@@ -62,7 +64,9 @@ import protocol
 from ledger import (
     RESULTS,
     Ledger,
+    Partial,
     Progress,
+    add_checkpoint_option,
     cell_is_current,
     device_name,
     duration,
@@ -231,7 +235,8 @@ def jobs_of(settings: Settings) -> list[Job]:
             for variants in (("plain", "pessimistic"), ("ccr",))]
 
 
-def run_grid(settings: Settings, out: Path, ledger: Ledger) -> tuple[dict, int]:
+def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial
+             ) -> tuple[dict, int]:
     """Trains every missing cell (compiling the next program while one trains); returns
     the cells by (scenario, algo, variant) and the number of programs trained."""
     jobs = jobs_of(settings)
@@ -262,11 +267,12 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger) -> tuple[dict, int]:
         compiled = [compiler.submit(job.training.compile, not settings.quick) for job in todo]
         for number, (job, done) in enumerate(zip(todo, compiled, strict=True)):
             done.result()
-            runs = job.training.run()
+            runs = partial.train(job.training, job.name)
             for variant, cell in cells_of(job, runs, settings).items():
                 write_atomic(cell_path(out, job.scenario, job.algo, variant),
                              json.dumps(cell) + "\n")
                 cells[(job.scenario, job.algo, variant)] = cell
+            partial.discard(job.name)
             job.training = None  # free the compiled program
             ledger.record(number + 1)
             log(progress.finished(number, runs.run_s + runs.compile_s))
@@ -714,6 +720,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{RESULTS / 'tables'}, written with --force)")
     parser.add_argument("--force", action="store_true",
                         help="allow --out to be a folder of committed results")
+    add_checkpoint_option(parser)
     return parser
 
 
@@ -760,7 +767,7 @@ def main(argv: list[str] | None = None) -> int:
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
-    cells, trained = run_grid(settings, out, ledger)
+    cells, trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
     ledger.record(trained, finished=True)
     controllers = reference_rows(settings)
     result = summary(cells, settings, ledger.invocations, controllers, sources)

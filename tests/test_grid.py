@@ -19,7 +19,7 @@ SCRIPT = textwrap.dedent(
     import json
     import jax
     import numpy as np
-    from ccrjax.training.grid import GridProgram, grid_mesh
+    from ccrjax.training.grid import grid_mesh
     from ccrjax.agents.ddpg import DDPGConfig
     from ccrjax.training.grid import GridTraining
     from ccrjax.training import TrainConfig
@@ -32,11 +32,11 @@ SCRIPT = textwrap.dedent(
     )
     results = {}
     for name, devices in (("two", jax.devices()), ("one", jax.devices()[:1])):
-        training = GridTraining(config, [0, 1, 2], {"lam": [0.0, 30.0, 30.0]})
-        training.grid = GridProgram(training.grid.function, grid_mesh(devices))
+        training = GridTraining(config, [0, 1, 2], {"lam": [0.0, 30.0, 30.0]},
+                                mesh=grid_mesh(devices))
         runs = training.run()
         leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(runs.policy)]
-        results[name] = (runs.history, leaves, training.grid.num_devices)
+        results[name] = (runs.history, leaves, training.num_devices)
     (h2, p2, n2), (h1, p1, n1) = results["two"], results["one"]
     assert (n2, n1) == (2, 1)
     # Equal up to float32 rounding: the partitioned program may sum in another order.

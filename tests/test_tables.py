@@ -146,17 +146,23 @@ def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
         return real_cells_of(*args)
 
     monkeypatch.setattr(tables, "cells_of", killed_during_the_second_program)
+    argv = ["--quick", "--out", str(out), "--checkpoint-minutes", "0.000001"]  # every chunk
     with pytest.raises(KeyboardInterrupt):
-        tables.main(["--quick", "--out", str(out)])
+        tables.main(argv)
     ledger = json.loads((out / "invocations.json").read_text())["invocations"]
     assert (ledger[-1]["programs_trained"], ledger[-1]["finished"]) == (1, False)
     assert (out / "cells" / "strong_wind-maddpg-ccr.json").exists()
     assert not (out / "cells" / "strong_wind-maac-ccr.json").exists()
+    # The first program's checkpoint went with its cell; the killed one's is kept.
+    assert [p.name for p in (out / "partial").iterdir()] == ["strong_wind-maac-ccr"]
 
     monkeypatch.setattr(tables, "cells_of", real_cells_of)
     capsys.readouterr()
-    assert tables.main(["--quick", "--out", str(out)]) == 0
-    assert "17 of 18 programs already done; 1 to train" in capsys.readouterr().err
+    assert tables.main(argv) == 0
+    err = capsys.readouterr().err
+    assert "17 of 18 programs already done; 1 to train" in err
+    assert "resuming from its checkpoint after 1 of 2 evaluations" in err
+    assert not (out / "partial").exists()
     runs = json.loads((out / "tables.json").read_text())["invocations"]
     assert [(r["programs_trained"], r["finished"]) for r in runs][-2:] == [(1, False), (1, True)]
     assert "stopped before the end" in (out / "tables.md").read_text()

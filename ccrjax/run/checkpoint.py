@@ -152,12 +152,14 @@ class Checkpoints:
         return target
 
     def restore_latest(self, abstract_state: Any, abstract_buffer: Any,
-                       fingerprint: str) -> Restored:
+                       fingerprint: str, buffer_as_abstract: bool = False) -> Restored:
         """The newest readable checkpoint, restored into the structure of ``abstract_state``,
         and its buffer in the structure of ``abstract_buffer`` with the sizes it was saved
         with (a run extended with a larger budget has a larger buffer than its older
         checkpoints); the buffer is ``None`` if the checkpoint kept none, or if
-        ``abstract_buffer`` is ``None`` (not asked for).
+        ``abstract_buffer`` is ``None`` (not asked for). ``buffer_as_abstract``: the buffer
+        was saved with ``abstract_buffer``'s sizes, and is restored straight into its
+        shapes and shardings (onto the devices, never whole in host memory first).
 
         Raises :class:`IncompatibleCheckpoint` for a checkpoint of another configuration
         and :class:`CheckpointError` when there is none, or none is readable.
@@ -183,13 +185,18 @@ class Checkpoints:
             try:
                 items = {"state": ocp.args.StandardRestore(abstract_state)}
                 if abstract_buffer is not None and self.has_buffer(step):
-                    items["buffer"] = ocp.args.StandardRestore()  # its own shapes
+                    items["buffer"] = ocp.args.StandardRestore(
+                        abstract_buffer if buffer_as_abstract else None)  # else its own shapes
                 restored = self.manager.restore(step, args=ocp.args.Composite(**items))
                 state = restored["state"]
                 if _shapes(state) != _shapes(abstract_state):
                     raise ValueError("restored arrays have other shapes")
-                buffer = (_as_like(restored["buffer"], abstract_buffer) if "buffer" in items
-                          else None)
+                buffer = restored["buffer"] if "buffer" in items else None
+                if buffer is not None and buffer_as_abstract:
+                    if _shapes(buffer) != _shapes(abstract_buffer):
+                        raise ValueError("the restored buffer has other shapes")
+                elif buffer is not None:
+                    buffer = _as_like(buffer, abstract_buffer)
             except Exception as error:
                 if self._layout_differs(step, abstract_state):
                     raise IncompatibleCheckpoint(

@@ -8,7 +8,7 @@ all GPUs of a machine, or the devices of several machines:
 * the grid is padded to a multiple of the device count (the padding repeats the
   last entry and is dropped from the results);
 * inputs are placed with ``NamedSharding(mesh, P("grid"))`` on a one-axis mesh of
-  all devices, and the vmapped program is jitted with the same sharding for its
+  all devices, and each vmapped program is jitted with the same sharding for its
   outputs; the runs are independent, so XLA partitions the program along the
   grid with no communication between devices;
 * results come back to every host whole (``process_allgather`` when several
@@ -103,48 +103,73 @@ class GridProgram:
     ``GridProgram(f)(grid_inputs)`` returns ``vmap(f)(grid_inputs)`` as host (numpy)
     arrays. ``grid_inputs`` is a pytree whose leaves share the leading grid axis.
     Compile ahead of time with :meth:`compile` to time the compilation on its own.
+
+    :meth:`place` and :meth:`apply` keep inputs and outputs on the devices (padded to the
+    device count), for a program called again on its own output: with ``donate=True`` the
+    input's memory is reused for the output, so a state of many gigabytes is held once.
     """
 
-    def __init__(self, function: Callable[[Any], Any], mesh: Mesh | None = None) -> None:
+    def __init__(self, function: Callable[[Any], Any], mesh: Mesh | None = None,
+                 donate: bool = False) -> None:
         self.mesh = grid_mesh() if mesh is None else mesh
         self.sharding = NamedSharding(self.mesh, P(GRID_AXIS))
         self.function = function
         self._jitted = jax.jit(jax.vmap(function), in_shardings=self.sharding,
-                               out_shardings=self.sharding)
+                               out_shardings=self.sharding,
+                               donate_argnums=(0,) if donate else ())
         self._compiled: dict[Any, Any] = {}
 
     @property
     def num_devices(self) -> int:
         return self.mesh.devices.size
 
-    def _prepare(self, inputs: Any) -> tuple[Any, int]:
+    def place(self, inputs: Any) -> tuple[Any, int]:
+        """Host ``inputs`` padded to the device count and placed on the devices; and the
+        grid's size before padding."""
         leaves = jax.tree_util.tree_leaves(inputs)
         size = int(np.shape(leaves[0])[0])
         host = jax.tree_util.tree_map(np.asarray, inputs)
         padded = _pad(host, size, padded_size(size, self.num_devices))
         return _global(padded, self.sharding), size
 
+    def abstract(self, tree: Any) -> Any:
+        """``tree``'s leaves (arrays or shape structs, leading axis already padded) as shape
+        structs with this program's sharding: what :meth:`compile_for` and a restore take."""
+        return jax.tree_util.tree_map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), tree)
+
     @staticmethod
     def _signature(placed: Any) -> Any:
         return jax.tree_util.tree_structure(placed), tuple(
             (x.shape, x.dtype) for x in jax.tree_util.tree_leaves(placed))
 
-    def compile(self, inputs: Any, optimize: bool = True) -> None:
-        """Compiles for inputs like ``inputs`` ahead of the call. ``optimize=False`` compiles
-        at XLA's lowest backend optimisation level: about half the compile time on CPU and a
-        slower program, for smoke tests whose programs run for moments."""
-        placed, _ = self._prepare(inputs)
+    def compile_for(self, placed: Any, optimize: bool = True) -> None:
+        """Compiles for placed inputs (or their :meth:`abstract` shapes) ahead of the call.
+        ``optimize=False`` compiles at XLA's lowest backend optimisation level: about half
+        the compile time on CPU and a slower program, for smoke tests whose programs run
+        for moments."""
         key = self._signature(placed)
         if key not in self._compiled:
             lowered = self._jitted.lower(placed)
             options = None if optimize else {"xla_backend_optimization_level": 0}
             self._compiled[key] = lowered.compile(compiler_options=options)
 
+    def compile(self, inputs: Any, optimize: bool = True) -> None:
+        """:meth:`compile_for` host inputs like ``inputs``."""
+        self.compile_for(self.place(inputs)[0], optimize)
+
+    def apply(self, placed: Any) -> Any:
+        """The program on placed inputs; the outputs stay on the devices, padded."""
+        return self._compiled.get(self._signature(placed), self._jitted)(placed)
+
     def __call__(self, inputs: Any) -> Any:
-        placed, size = self._prepare(inputs)
-        run = self._compiled.get(self._signature(placed), self._jitted)
-        out = _to_host(run(placed))
-        return jax.tree_util.tree_map(lambda x: np.asarray(x)[:size], out)
+        placed, size = self.place(inputs)
+        return fetch(self.apply(placed), size)
+
+
+def fetch(placed: Any, size: int) -> Any:
+    """Placed outputs as host (numpy) arrays, the padding dropped."""
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[:size], _to_host(placed))
 
 
 def stack_keys(seeds: list[int]) -> jax.Array:
@@ -184,16 +209,40 @@ class GridRuns:
         )
 
 
+@dataclasses.dataclass
+class GridProgress:
+    """A grid part-way through training: every run's ``TrainState`` (on the devices, padded
+    to the device count), the evaluation points so far (host arrays ``[runs]`` per metric,
+    the untrained policies' first) and the seconds spent training them."""
+
+    state: Any
+    history: list[dict[str, np.ndarray]]
+    run_s: float
+
+    @property
+    def evaluations(self) -> int:
+        """Evaluations after the first: chunks of ``eval_every`` steps trained."""
+        return len(self.history) - 1
+
+
 class GridTraining:
-    """A grid of runs of one configuration, compiled and run as one sharded program.
+    """A grid of runs of one configuration, trained together by sharded programs.
 
     Entry ``g`` trains with seed ``seeds[g]`` and the transform numbers ``params[name][g]``
     (e.g. ``{"lam": [...]}``, ``{"penalty": [...]}``); the others take the configuration's
-    values. With ``record_episodes > 0`` the same program then runs that many fresh
-    evaluation episodes of every trained team (deterministic policies; the same starts
-    and hazards for every entry, drawn from ``record_key``) and returns what happened in
-    them (:attr:`GridRuns.episodes`). :meth:`compile` and :meth:`run` are separate so
-    that a caller can compile the next grid while this one trains.
+    values. With ``record_episodes > 0`` the trained teams then run that many fresh
+    evaluation episodes each (deterministic policies; the same starts and hazards for every
+    entry, drawn from ``record_key``) and :attr:`GridRuns.episodes` holds what happened.
+
+    Training is three compiled programs, each vmapped over the grid: ``start`` (every run's
+    initial state and its untrained policy's evaluation), ``chunk`` (``eval_every`` steps
+    then an evaluation: :meth:`ccrjax.training.program.TrainProgram.chunk`, called once per
+    evaluation on the state it returned, which stays on the devices and is donated, so it is
+    held once) and ``finish`` (the policies and the recorded episodes). A caller can look at
+    (and save) the state between chunks and start again from it (:meth:`run`'s ``resume``
+    and ``after_chunk``; :mod:`ccrjax.run.grid_checkpoint` saves and restores it). :meth:`compile`
+    and :meth:`run` are separate so that a caller can compile the next grid while this one
+    trains.
     """
 
     def __init__(
@@ -204,10 +253,12 @@ class GridTraining:
         *,
         record_episodes: int = 0,
         record_key: jax.Array | None = None,
+        mesh: Mesh | None = None,
     ) -> None:
         self.config = config
         self.seeds = [int(s) for s in seeds]
         program = make_train(config)
+        self.program = program
         defaults = program.default_transform_params()
         given = {k: np.asarray(v, np.float32) for k, v in (params or {}).items()}
         for name, values in given.items():
@@ -220,12 +271,21 @@ class GridTraining:
         self.params = {name: given.get(name, np.full(len(self.seeds), value, np.float32))
                        for name, value in defaults.items()}
         self.inputs = {"key": np.asarray(stack_keys(self.seeds)), "params": self.params}
+        self.record_episodes = record_episodes
         record_env = make_env(config, record_episodes) if record_episodes else None
         record_key = jax.random.PRNGKey(0) if record_key is None else record_key
+        self.record_key = np.asarray(record_key)
 
-        def one_run(entry: dict[str, Any]):
-            state, history = program.train(entry["key"], entry["params"])
-            out = {"policy": (state.learner, state.transform), "history": history,
+        def start(entry: dict[str, Any]):
+            state = program.init(entry["key"], entry["params"])
+            return state, program.evaluation_point(state)
+
+        def chunk(state):
+            state, point, _ = program.chunk(state)
+            return state, point
+
+        def finish(state):
+            out = {"policy": (state.learner, state.transform),
                    "nonfinite": state.nonfinite_iteration}
             if record_env is not None:
                 def greedy(obs, step_key):
@@ -243,30 +303,72 @@ class GridTraining:
                 }
             return out
 
-        self.grid = GridProgram(one_run)
+        mesh = grid_mesh() if mesh is None else mesh
+        self._start = GridProgram(start, mesh)
+        self._chunk = GridProgram(chunk, mesh, donate=True)
+        self._finish = GridProgram(finish, mesh)
         self.compile_s = 0.0
 
+    @property
+    def num_devices(self) -> int:
+        return self._start.num_devices
+
+    @property
+    def num_runs(self) -> int:
+        return len(self.seeds)
+
+    def abstract_state(self) -> Any:
+        """The shapes (padded) and sharding of every run's ``TrainState``, as ``chunk``
+        takes and returns it."""
+        placed, _ = self._start.place(self.inputs)
+        state, _ = jax.eval_shape(jax.vmap(self._start.function), placed)
+        return self._chunk.abstract(state)
+
     def compile(self, optimize: bool = True) -> float:
-        """Compiles the program (thread-safe to call from a worker); returns the seconds.
-        ``optimize=False``: see :meth:`ccrjax.training.grid.GridProgram.compile`."""
-        start = time.perf_counter()
-        self.grid.compile(self.inputs, optimize)
-        self.compile_s = time.perf_counter() - start
+        """Compiles the three programs (thread-safe to call from a worker); returns the
+        seconds. ``optimize=False``: see :meth:`ccrjax.training.grid.GridProgram.compile_for`."""
+        began = time.perf_counter()
+        self._start.compile(self.inputs, optimize)
+        state = self.abstract_state()
+        self._chunk.compile_for(state, optimize)
+        self._finish.compile_for(state, optimize)
+        self.compile_s = time.perf_counter() - began
         return self.compile_s
 
-    def run(self) -> GridRuns:
-        """Trains every entry; raises :class:`ccrjax.training.program.NonFiniteTraining` if one went
-        non-finite."""
-        start = time.perf_counter()
-        out = self.grid(self.inputs)
-        run_s = time.perf_counter() - start
+    def run(self, resume: GridProgress | None = None,
+            after_chunk: Callable[[GridProgress], None] | None = None) -> GridRuns:
+        """Trains every entry (from ``resume`` if given) and returns the results.
+
+        ``after_chunk(progress)`` is called after every chunk but the last; the state it
+        sees is donated to the next chunk when it returns, so it must not keep it. Raises
+        :class:`ccrjax.training.program.NonFiniteTraining` if an entry went non-finite.
+        """
+        began = time.perf_counter()
+        size = self.num_runs
+        if resume is None:
+            placed, _ = self._start.place(self.inputs)
+            state, point = self._start.apply(placed)
+            history, earlier_s = [fetch(point, size)], 0.0
+        else:
+            state, history, earlier_s = resume.state, list(resume.history), resume.run_s
+        total = self.program.num_evaluations
+        for done in range(len(history), total + 1):
+            state, point = self._chunk.apply(state)
+            history.append(fetch(point, size))
+            if after_chunk is not None and done < total:
+                after_chunk(GridProgress(state, history,
+                                         earlier_s + time.perf_counter() - began))
+        out = fetch(self._finish.apply(state), size)
+        del state
         found = first_nonfinite(out["nonfinite"], self.seeds)
         if found is not None:
             raise NonFiniteTraining(found.message())
         return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
-                        history={k: np.asarray(v) for k, v in out["history"].items()},
+                        history={k: np.stack([point[k] for point in history], axis=1)
+                                 for k in history[0]},
                         policy=out["policy"], episodes=out.get("episodes"),
-                        compile_s=self.compile_s, run_s=run_s)
+                        compile_s=self.compile_s,
+                        run_s=earlier_s + time.perf_counter() - began)
 
 
 def train_grid(
@@ -283,6 +385,6 @@ def train_grid(
                             record_key=record_key)
     compile_s = training.compile()
     if log:
-        log(f"  compiled in {compile_s:.1f} s ({training.grid.num_devices} device(s)); "
+        log(f"  compiled in {compile_s:.1f} s ({training.num_devices} device(s)); "
             f"training {len(training.seeds)} run(s) ...")
     return training.run()
