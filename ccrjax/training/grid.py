@@ -209,7 +209,7 @@ class GridRuns:
         )
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class GridProgress:
     """A grid part-way through training: every run's ``TrainState`` (on the devices, padded
     to the device count), the evaluation points so far (host arrays ``[runs]`` per metric,
@@ -359,7 +359,6 @@ class GridTraining:
                 after_chunk(GridProgress(state, history,
                                          earlier_s + time.perf_counter() - began))
         out = fetch(self._finish.apply(state), size)
-        del state
         found = first_nonfinite(out["nonfinite"], self.seeds)
         if found is not None:
             raise NonFiniteTraining(found.message())
