@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Fills .whl/ with the Python 3.12 x86-64 wheels that the lent GPU machine's image lacks and
+# the experiments need (rliable and arch for the statistics; pandas < 3, which arch 7 needs),
+# and, with --tests, .whltest/ with those that the test suite and the benchmarks need too
+# (brax and MuJoCo, mpe2 and PettingZoo, flashbax). Run it here, where pip reaches a package
+# index; the GPU machine reaches none. Both folders are git-ignored and travel with a call's
+# `carry` (64 MiB in all, the working tree included: about 14 MB and 22 MB).
+#
+# The image's own packages (jax with CUDA, flax, optax, chex, orbax-checkpoint, numpy, scipy,
+# matplotlib, ...) are used as they are; tools/gpu/README.md lists what was checked there.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+PIP="${PIP:-.venv/bin/python -m pip}"
+PLATFORM=(--only-binary=:all: --python-version 3.12 --implementation cp
+  --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64
+  --platform manylinux_2_24_x86_64 --platform manylinux_2_17_x86_64
+  --platform manylinux2014_x86_64 --platform manylinux1_x86_64)
+
+# The experiments: named one by one with --no-deps, so nothing the image has comes twice.
+rm -rf .whl && mkdir -p .whl
+# rliable publishes no wheel: build its pure-Python one here.
+$PIP wheel -q --no-deps -w .whl "rliable==1.2.0"
+$PIP download -q --no-deps "${PLATFORM[@]}" -d .whl \
+  "arch>=5.3.1,<8" "pandas>=2,<3" pytz tzdata
+
+if [[ "${1:-}" == "--tests" ]]; then
+  rm -rf .whltest && mkdir -p .whltest
+  # brax's and mpe2's needs that the image lacks (their rendering extras left out: mujoco's
+  # viewer, pygame and OpenGL are never imported by the tests).
+  $PIP download -q --no-deps "${PLATFORM[@]}" -d .whltest \
+    "brax==0.14.2" "mujoco==4.0.0" "mujoco-core==4.0.0" "mujoco-mjx==3.17.0" jaxopt \
+    ml_collections trimesh flask flask_cors blinker itsdangerous tensorboardX \
+    "mpe2==1.1.1" pettingzoo gymnasium farama-notifications "flashbax==0.1.3"
+fi
+du -sh .whl .whltest 2>/dev/null || true
