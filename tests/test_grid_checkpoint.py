@@ -70,9 +70,14 @@ def test_a_grid_killed_after_a_checkpoint_resumes_to_exactly_the_same_result(
         train_resumably(grid(), folder, every_s=1e-9, log=log_then_kill)
     assert [int(p.name) for p in folder.iterdir() if p.name.isdigit()] == [80]
 
-    resumed = train_resumably(grid(), folder, every_s=1e-9, log=lines.append)
+    resumed = train_resumably(grid(), folder, every_s=1e-9, log=lines.append,
+                              note_first_s=0.0, note_every_s=0.0)
     assert any("resuming from its checkpoint after 2 of 4 evaluations" in line
                for line in lines), lines
+    # Progress after every chunk but the last, counted from the resumed evaluations.
+    notes = [line for line in lines if "evaluations trained" in line]
+    assert len(notes) == 1 and "3 of 4 evaluations trained" in notes[0], lines
+    assert "min left in this program" in notes[0]
     for key in through.history:
         np.testing.assert_array_equal(resumed.history[key], through.history[key], key)
     for ours, theirs in zip(leaves(resumed.policy), leaves(through.policy), strict=True):

@@ -93,14 +93,42 @@ def restore(training: GridTraining, checkpoints: Checkpoints,
                         history=history, run_s=float(restored.meta["run_s"]))
 
 
+class ProgressNotes:
+    """Lines saying how far a grid in training is, with the time its program has left,
+    the first after ``first_s`` seconds and then at most every ``every_s``: a program of
+    hours (or one on a machine held for minutes) shows early whether it will end in time."""
+
+    def __init__(self, training: GridTraining, resume: GridProgress | None,
+                 log: Callable[[str], None], first_s: float, every_s: float) -> None:
+        self.total = training.program.num_evaluations
+        self.from_evaluations = resume.evaluations if resume is not None else 0
+        self.log, self.every_s = log, every_s
+        self.began = time.perf_counter()
+        self.next_note = self.began + first_s
+
+    def __call__(self, progress: GridProgress) -> None:
+        now = time.perf_counter()
+        done = progress.evaluations - self.from_evaluations
+        if now < self.next_note or done <= 0:
+            return
+        self.next_note = now + self.every_s
+        left_s = (now - self.began) / done * (self.total - progress.evaluations)
+        self.log(f"  {progress.evaluations} of {self.total} evaluations trained "
+                 f"({progress.run_s / 60:.1f} min); about {left_s / 60:.1f} min left in "
+                 "this program")
+
+
 def train_resumably(training: GridTraining, folder: Path | None,
                     every_s: float = DEFAULT_EVERY_S,
-                    log: Callable[[str], None] = print) -> GridRuns:
+                    log: Callable[[str], None] = print,
+                    note_first_s: float = 30.0, note_every_s: float = 300.0) -> GridRuns:
     """Trains ``training`` (compiled or not), resuming from ``folder``'s checkpoint if it
     holds one of this grid and saving one there at most every ``every_s`` seconds.
-    ``folder=None`` or ``every_s=0`` trains without checkpoints (``every_s=0`` still resumes)."""
+    ``folder=None`` or ``every_s=0`` trains without checkpoints (``every_s=0`` still resumes).
+    Progress is logged after ``note_first_s`` seconds, then every ``note_every_s``
+    (:class:`ProgressNotes`)."""
     if folder is None:
-        return training.run()
+        return training.run(None, ProgressNotes(training, None, log, note_first_s, note_every_s))
     checkpoints = Checkpoints(Path(folder), keep=1)
     try:
         resume = restore(training, checkpoints, log)
@@ -109,9 +137,11 @@ def train_resumably(training: GridTraining, folder: Path | None,
         steps_per_chunk = training.config.iterations_per_eval * training.config.steps_per_iteration
         last_save = time.perf_counter()
         meta_base = {"fingerprint": grid_fingerprint(training)}
+        notes = ProgressNotes(training, resume, log, note_first_s, note_every_s)
 
         def after_chunk(progress: GridProgress) -> None:
             nonlocal last_save
+            notes(progress)
             if every_s <= 0 or time.perf_counter() - last_save < every_s:
                 return
             began = time.perf_counter()
@@ -137,4 +167,7 @@ def discard(folder: Path | None) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-__all__ = ["DEFAULT_EVERY_S", "discard", "grid_fingerprint", "restore", "train_resumably"]
+__all__ = [
+    "DEFAULT_EVERY_S", "ProgressNotes", "discard", "grid_fingerprint", "restore",
+    "train_resumably",
+]
