@@ -84,6 +84,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     values = [0.0, *DEFAULT_VALUES[args.variant]] if args.values is None else args.values
     values = sorted({float(v) for v in values})
     seeds = [args.seed_offset + k for k in range(args.seeds)]
+    commit = git_commit()  # the code that trains is the code loaded now
     name, grid_seeds, grid_values = search_grid(config, values, seeds)
     print(f"{PROG}: {args.algo} + {args.variant} on {args.scenario}: {len(values)} {name} x "
           f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.budget:,} steps, "
@@ -95,7 +96,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         "scenario": args.scenario, "algo": args.algo, "env_steps": config.budget,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
-        "command": " ".join([PROG, *sys.argv[1:]]), "commit": git_commit(),
+        "command": " ".join([PROG, *sys.argv[1:]]), "commit": commit,
         "rows": search_rows(runs, values, grid_values, seeds),
     }
     args.out.mkdir(parents=True, exist_ok=True)

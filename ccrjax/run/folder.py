@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import hashlib
 import io
 import json
@@ -97,8 +98,13 @@ def write_atomic(path: Path, text: str) -> None:
         os.fsync(handle.fileno())
 
 
+@functools.cache
 def git_commit() -> str | None:
     """The commit of the ccrjax source tree (with ``+dirty`` if it has changes), if any.
+
+    Read once per process, at the first call (every command makes it when it starts): the
+    code that runs is the code imported then, so a commit made while a long program trains
+    must not relabel that program's results.
 
     ``CCRJAX_COMMIT`` in the environment names it instead, for a copy of the tree whose git
     history is not the one it came from (a remote machine that receives the working tree)."""
