@@ -18,6 +18,7 @@ from scipy import stats as scipy_stats
 
 from ccrjax.run.selection import SelectionRule, select
 from ccrjax.run.stats import (
+    holm,
     iqm,
     mean_ci,
     mean_ci_along,
@@ -149,6 +150,19 @@ def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation():
     assert centre == pytest.approx(0.2, abs=0.2 * sd)
 
 
+def test_a_resample_with_a_zero_base_is_dropped_not_read_as_no_change():
+    """Base: nine seeds at 0 and one at 0.04; new: 0.002 on every seed. A resample holding
+    the 0.04 seed ``k >= 1`` times has base mean ``0.004 k`` and reduction ``1 - 0.5 / k``,
+    at least 0.5; one without it (probability ``0.9^10 = 0.35``) has no relative change.
+    Counting those as 0 pulled the interval's lower end to 0."""
+    base = np.array([0.0] * 9 + [0.04])
+    result = mean_relative_change([(np.full(10, 0.002), base)], -1, resamples=4000)
+    assert result["mean"] == pytest.approx(0.5)
+    assert result["ci_low"] == pytest.approx(0.5)
+    assert 0.5 < result["ci_high"] < 1.0
+    assert result["resamples_dropped"] / 4000 == pytest.approx(0.9**10, abs=0.03)
+
+
 def test_plateau_tells_a_rising_curve_from_a_flat_one():
     steps = np.arange(20, dtype=np.float64)
     noise = np.array([[0.1, -0.1, 0.05, -0.05] * 5, [-0.1, 0.1, -0.05, 0.05] * 5,
@@ -248,3 +262,13 @@ def test_selection_rule_refuses_unknown_metrics():
     metrics, reference = made_up_search([0.9], [0.1], 0.9)
     with pytest.raises(ValueError, match="no metric 'return'"):
         select(SelectionRule(objective="return"), [1.0], metrics, reference)
+
+
+def test_holm_steps_down_and_stops_at_the_first_failure():
+    """m = 4: thresholds 0.0125, 0.0167, 0.025, 0.05 for the sorted p-values. 0.01 and 0.015
+    pass; 0.03 > 0.025 fails, so 0.04 is not rejected although it is below 0.05."""
+    rejected = holm([0.04, 0.01, 0.03, 0.015])
+    assert rejected.tolist() == [False, True, False, True]
+    assert holm([0.001, 0.002]).tolist() == [True, True]
+    assert holm([0.2, 0.001]).tolist() == [False, True]
+    assert not holm([0.06, 0.5]).any()

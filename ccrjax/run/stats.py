@@ -6,7 +6,8 @@
   normal interval when ``n`` is small (``t = 2.26`` for 10 seeds). The interval is
   clipped to the metric's range (``bounds``): a success rate's interval never leaves
   [0, 1]. With one seed there is no interval (``None``).
-* :func:`welch`: Welch's unequal-variance t-test of two groups of seeds.
+* :func:`welch`: Welch's unequal-variance t-test of two groups of seeds; :func:`holm`:
+  Holm's correction of a family of such tests.
 * :func:`relative_change` and :func:`mean_relative_change`: the paper's headline
   numbers (the average over scenario x learner pairs of the relative change of the
   mean), with a bootstrap interval over seeds.
@@ -108,6 +109,22 @@ def welch(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray,
     return {"difference": difference, "p": p, "significant": bool(p < alpha)}
 
 
+def holm(p_values: Sequence[float] | np.ndarray, alpha: float = 0.05) -> np.ndarray:
+    """Holm's step-down correction for ``m`` tests: which null hypotheses are rejected with
+    the family-wise error held at ``alpha``. The ``k``-th smallest p-value (``k`` from 1)
+    is compared with ``alpha / (m - k + 1)``; hypotheses are rejected in that order until
+    the first comparison that fails. Returns booleans in the order of ``p_values``."""
+    p = np.asarray(p_values, dtype=np.float64).reshape(-1)
+    order = np.argsort(p, kind="stable")
+    thresholds = alpha / (p.size - np.arange(p.size))
+    passed = p[order] <= thresholds
+    # Step-down: everything before the first failure is rejected, nothing after it.
+    count = p.size if passed.all() else int(np.argmin(passed))
+    rejected = np.zeros(p.size, dtype=bool)
+    rejected[order[:count]] = True
+    return rejected
+
+
 def relative_change(new: Sequence[float] | np.ndarray, base: Sequence[float] | np.ndarray
                     ) -> float:
     """``(mean(new) - mean(base)) / mean(base)``; NaN where the base mean is 0."""
@@ -123,7 +140,9 @@ def mean_relative_change(pairs: Sequence[tuple[np.ndarray, np.ndarray]], sign: f
     ``sign = -1``: a reduction ``(base - new) / base``; ``+1``: an increase. Pairs whose
     base mean is 0 are left out (and counted in ``left_out``). The 95% interval resamples
     the seeds of every group with replacement (bootstrap, ``resamples`` times) and takes
-    the 2.5 and 97.5 percentiles of the average.
+    the 2.5 and 97.5 percentiles of the average. A resample in which a pair's base mean is
+    0 has no relative change: it is dropped (counted in ``resamples_dropped``), not read as
+    "no change", which would pull the interval towards 0.
     """
     rng = np.random.default_rng(seed)
     used = [(np.asarray(n, np.float64), np.asarray(b, np.float64)) for n, b in pairs
@@ -137,11 +156,14 @@ def mean_relative_change(pairs: Sequence[tuple[np.ndarray, np.ndarray]], sign: f
         new_means = rng.choice(n, (resamples, n.size), replace=True).mean(axis=1)
         base_means = rng.choice(b, (resamples, b.size), replace=True).mean(axis=1)
         safe = np.where(base_means != 0, base_means, 1.0)
-        boot += np.where(base_means != 0, sign * (new_means - base_means) / safe, 0.0)
+        boot += np.where(base_means != 0, sign * (new_means - base_means) / safe, np.nan)
     boot /= len(used)
-    return {"mean": float(np.mean(values)), "ci_low": float(np.percentile(boot, 2.5)),
-            "ci_high": float(np.percentile(boot, 97.5)), "pairs": len(used),
-            "left_out": len(pairs) - len(used)}
+    kept = boot[np.isfinite(boot)]
+    low = float(np.percentile(kept, 2.5)) if kept.size else None
+    high = float(np.percentile(kept, 97.5)) if kept.size else None
+    return {"mean": float(np.mean(values)), "ci_low": low, "ci_high": high,
+            "pairs": len(used), "left_out": len(pairs) - len(used),
+            "resamples_dropped": int(resamples - kept.size)}
 
 
 def _score_matrix(scores: np.ndarray, what: str) -> np.ndarray:
