@@ -53,10 +53,32 @@ def test_search_and_progress_figures_render(tmp_path):
     path = tmp_path / "tradeoff.png"
     plots.draw_search_tradeoff({"a": rows, "b": rows}, "lam", path)
     assert is_picture(path)
+
+
+def test_progress_figure_draws_every_seed_and_a_band_within_range(tmp_path, monkeypatch):
+    """Danger near 0 with spread: the band (a polygon) never goes below 0; every seed of
+    every variant has its own faint path."""
+    polygons, lines = [], []
+    fill, plot = Axes.fill, Axes.plot
+
+    def spy_fill(self, x, y, **kwargs):
+        polygons.append(np.asarray(y))
+        return fill(self, x, y, **kwargs)
+
+    def spy_plot(self, *args, **kwargs):
+        lines.append(kwargs.get("alpha"))
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(Axes, "fill", spy_fill)
+    monkeypatch.setattr(Axes, "plot", spy_plot)
     rng = np.random.default_rng(0)
     returns = -40 + np.cumsum(rng.random((3, 6)), axis=1)
-    danger = rng.random((3, 6)) * 0.3
+    danger = np.array([[0.0, 0.2, 0.0, 0.0, 0.3, 0.0]] * 2 + [[0.3, 0.0, 0.2, 0.0, 0.0, 0.1]])
     path = tmp_path / "progress.png"
     plots.draw_progress_matched({"MADDPG": {"plain": (returns, danger),
                                             "ccr": (returns, danger / 2)}}, path, title="t")
     assert is_picture(path)
+    assert len(polygons) == 2
+    for y in polygons:
+        assert y.min() >= 0.0 and y.max() <= 1.0
+    assert lines.count(0.25) == 2 * 3  # a faint path per seed and variant

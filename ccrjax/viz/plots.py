@@ -74,7 +74,7 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
                 metrics: Sequence[str] = CURVE_METRICS, title: str | None = None,
                 dpi: int = 120) -> None:
     """One panel per metric: each run's mean over seeds, its 95% band, its seeds faint."""
-    columns = min(3, len(metrics))
+    columns = 2 if len(metrics) == 4 else min(3, len(metrics))  # no empty panel for 4
     rows = -(-len(metrics) // columns)
     fig = Figure(figsize=(4.2 * columns, 3.0 * rows + (0.4 if title else 0.0)), dpi=dpi)
     FigureCanvasAgg(fig)
@@ -105,10 +105,12 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
     if title:
         fig.suptitle(title, fontsize=11)
     if handles:  # below the panels, never over a curve
-        fig.legend(handles, [f"{label}: mean, 95% CI over seeds (clipped to the metric's range)"
-                             for label in labels],
-                   loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
-        fig.tight_layout(rect=(0, 0.09 / rows, 1, 1))
+        # The common words once, as the legend's title: the labels stay short enough to
+        # sit side by side on any figure width.
+        fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=9,
+                   frameon=False, title="mean (bold), 95% CI over seeds (band, clipped to the "
+                   "metric's range), each seed (faint)", title_fontsize=9)
+        fig.tight_layout(rect=(0, 0.15 / rows, 1, 1))
     else:
         fig.tight_layout()
     save_figure(fig, path, dpi)
@@ -214,26 +216,29 @@ VARIANT_COLOURS = {"plain": "#8c8c8c", "pessimistic": "#1f6fd1", "ccr": "#ff5fa2
 def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]],
                           path: str | os.PathLike[str], *, title: str, dpi: int = 120) -> None:
     """Danger against return along training: one panel per title in ``panels``, one line
-    per variant through its evaluations (``(returns, danger)``, each ``[seeds, points]``),
-    at each point the mean over seeds with 95% intervals in both directions (danger's
-    clipped to [0, 1]); the first evaluation is marked by a square, the last by a disc.
-    Reading across at equal return compares the variants at the same stage of learning:
-    a variant that is safer only because it has progressed less sits to the left on the
-    baseline's own curve."""
+    per variant through its evaluations (``(returns, danger)``, each ``[seeds, points]``):
+    every seed's path faint, the mean over seeds bold, and a band of danger's 95% interval
+    over seeds (clipped to [0, 1]) around the mean path; the first evaluation is marked by
+    a square, the last by a disc. Reading across at equal return compares the variants at
+    the same stage of learning: a variant that is safer only because it has progressed
+    less sits to the left on the baseline's own curve."""
     columns = len(panels)
     fig = Figure(figsize=(4.4 * columns, 4.0), dpi=dpi)
     FigureCanvasAgg(fig)
     for index, (panel, series) in enumerate(panels.items()):
         ax = fig.add_subplot(1, columns, index + 1)
-        for variant, (returns, danger) in series.items():
-            colour = VARIANT_COLOURS.get(variant, PALETTE[len(ax.lines) % len(PALETTE)])
-            x, x_low, x_high = mean_ci_along(returns, axis=0, bounds=METRIC_RANGES["return"])
+        for number, (variant, (returns, danger)) in enumerate(series.items()):
+            colour = VARIANT_COLOURS.get(variant, PALETTE[number % len(PALETTE)])
+            for seed_returns, seed_danger in zip(returns, danger, strict=True):
+                ax.plot(seed_returns, seed_danger, color=colour, linewidth=0.5, alpha=0.25)
+            x = np.mean(np.asarray(returns, np.float64), axis=0)
             y, y_low, y_high = mean_ci_along(danger, axis=0,
                                              bounds=METRIC_RANGES["danger_frequency"])
-            ax.errorbar(x, y, xerr=np.stack([x - x_low, x_high - x]),
-                        yerr=np.stack([y - y_low, y_high - y]), color=colour, linewidth=1.4,
-                        elinewidth=0.6, alpha=0.9, ecolor=colour,
-                        label=f"{variant} (n={returns.shape[0]} seeds)" if index == 0 else None)
+            # The band as a polygon: along the mean path out, back along it in reverse.
+            ax.fill(np.concatenate([x, x[::-1]]), np.concatenate([y_low, y_high[::-1]]),
+                    color=colour, alpha=0.18, linewidth=0)
+            ax.plot(x, y, color=colour, linewidth=1.6,
+                    label=f"{variant} (n={returns.shape[0]} seeds)" if index == 0 else None)
             ax.plot(x[:1], y[:1], marker="s", color=colour, markersize=6)
             ax.plot(x[-1:], y[-1:], marker="o", color=colour, markersize=7)
         ax.set_title(panel, fontsize=10)
@@ -244,8 +249,8 @@ def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarr
         ax.grid(alpha=0.3)
     handles, labels = fig.axes[0].get_legend_handles_labels()
     fig.suptitle(title, fontsize=11)
-    fig.legend(handles, [f"{label}: mean, 95% CI over seeds; ■ first, ● last evaluation"
-                         for label in labels], loc="lower center", ncol=len(handles),
-               fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8,
+               frameon=False, title="mean over seeds (bold), each seed (faint), band: 95% CI "
+               "of danger over seeds; ■ first, ● last evaluation", title_fontsize=8)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     save_figure(fig, path)
