@@ -43,8 +43,9 @@ made with the same settings. Every invocation is recorded in ``<out>/invocations
   paper's headline numbers recomputed (with bootstrap intervals); the claim scorecard;
 * figures: ``progress_<scenario>.png`` (danger against return along training, every
   variant and learner, with bands: is CCR's safety bought by slower progress?),
-  ``curves_hidden_obstacle_maddpg.png``, ``trajectories_hidden_obstacle_maddpg.png``,
-  ``distance_hidden_obstacle_maddpg.png``.
+  ``curves_<scenario>_<algo>.png`` (return, danger, success and the dangerous steps since
+  learning started along training, the three variants, every pair),
+  ``trajectories_hidden_obstacle_maddpg.png``, ``distance_hidden_obstacle_maddpg.png``.
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ from ccrjax.run.folder import (
 from ccrjax.run.paper import PAPER, PAPER_HEADLINES, SCENARIOS
 from ccrjax.run.stats import (
     format_mean_ci,
+    holm,
     iqm,
     mean_ci,
     mean_relative_change,
@@ -337,8 +339,15 @@ def claims(cells, marks) -> dict[str, Any]:
                 significant += is_significant
                 detail.append({"scenario": scenario, "algo": algo, "ccr": ccr, base: other,
                                "lower": is_lower, "significant": is_significant})
-        result[f"danger_lower_vs_{base}"] = {"cells": lower, "significant": significant,
-                                             "of": 9, "detail": detail}
+        # The 9 cells' tests as one family (Holm): how many lower cells survive it.
+        p_values = [marks[(d["scenario"], d["algo"], base, "danger_frequency")]["p"]
+                    for d in detail]
+        for d, rejected in zip(detail, holm(p_values), strict=True):
+            d["significant_holm"] = bool(d["lower"] and rejected)
+        result[f"danger_lower_vs_{base}"] = {
+            "cells": lower, "significant": significant,
+            "significant_holm": sum(d["significant_holm"] for d in detail),
+            "of": 9, "detail": detail}
     raised = []
     for algo in ALGOS:
         ccr = float(np.mean(cells[("hidden_obstacle", algo, "ccr")]["final"]["success_rate"]))
@@ -412,9 +421,11 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
                             base: marks[(scenario, algo, base, metric)]
                             for base in ("plain", "pessimistic")}
                 if "arrival" in cell:
-                    record["followers_closest_successful"] = stats(
-                        [x for x in cell["arrival"]["followers_closest_successful"]
-                         if np.isfinite(x)] or [float("nan")], "hazard_distance")
+                    measured = [x for x in cell["arrival"]["followers_closest_successful"]
+                                if np.isfinite(x)]  # seeds with a successful follower
+                    record["followers_closest_successful"] = {
+                        **stats(measured or [float("nan")], "hazard_distance"),
+                        "seeds_measured": f"{len(measured)}/{len(cell['seeds'])}"}
                 records.append(record)
     headlines = {
         "danger_reduction_vs_plain": headline(cells, "danger_frequency", "ccr", "plain", -1),
@@ -450,30 +461,45 @@ def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100 * x:.2f}%"
 
 
-def _cell_text(record_metric: dict, percent: bool) -> str:
+def welch_symbols(marks: dict) -> str:
+    """``↓*`` / ``↑*``: CCR significantly below / above plain; ``↓†`` / ``↑†``: below /
+    above pessimistic (Welch, p < 0.05); nothing where the difference is not significant."""
+    text = ""
+    for base, symbol in (("plain", "*"), ("pessimistic", "†")):
+        mark = marks.get(base, {})
+        if mark.get("significant"):
+            text += (" ↓" if mark["difference"] < 0 else " ↑") + symbol
+    return text
+
+
+def _cell_text(record_metric: dict, percent: bool, digits: int = 2) -> str:
     scale, unit = (100.0, "%") if percent else (1.0, "")
-    text = format_mean_ci(record_metric, percent)
-    marks = record_metric.get("welch", {})
-    text += "".join(symbol for base, symbol in (("plain", "*"), ("pessimistic", "†"))
-                    if marks.get(base, {}).get("significant"))
+    finite = record_metric["mean"] is not None and np.isfinite(record_metric["mean"])
+    text = format_mean_ci(record_metric, percent, digits) if finite else "none"
+    if "seeds_measured" in record_metric:
+        text += f" (n={record_metric['seeds_measured']})"
+    text += welch_symbols(record_metric.get("welch", {}))
     if "paper" in record_metric:
         text += f" ({record_metric['paper'] * scale:.2f}{unit})"
     return text
 
 
-def table(result: dict, metric: str, title: str, percent: bool) -> list[str]:
+def table(result: dict, metric: str, title: str, percent: bool, digits: int = 2) -> list[str]:
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
     controllers = {(c["scenario"], c["controller"]): c for c in result["controllers"]}
     header = "| | " + " | ".join(SCENARIO_NAMES[s] for s in SCENARIOS) + " |"
     lines = [f"### {title}", "", header, "|---|" + "---|" * len(SCENARIOS)]
     for name, label in CONTROLLERS.items():
+        if metric not in controllers[(SCENARIOS[0], name)]:
+            continue  # a training count: the controllers do not train
         scale, unit = (100.0, "%") if percent else (1.0, "")
         lines.append(f"| {label} | " + " | ".join(
             f"{controllers[(s, name)][metric] * scale:.2f}{unit}" for s in SCENARIOS) + " |")
     for algo in ALGOS:
         for variant in VARIANTS:
             name = LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant]
-            cells = [_cell_text(by_key[(s, algo, variant)][metric], percent) for s in SCENARIOS]
+            cells = [_cell_text(by_key[(s, algo, variant)][metric], percent, digits)
+                     for s in SCENARIOS]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines + [""]
 
@@ -509,8 +535,9 @@ def tables_markdown(result: dict) -> str:
         f"({result['sources']['penalty']}). Each cell: the final evaluation "
         f"({settings['eval_episodes']} fresh episodes per seed, deterministic policies), the "
         "mean and its 95% confidence interval over seeds (Student t, clipped to the metric's "
-        "range); `*`: CCR differs from plain, `†`: from pessimistic (Welch, p < 0.05); in "
-        "brackets the paper's number. Reference rows: hand-written controllers over "
+        "range); after a CCR cell, `↓*` / `↑*`: CCR significantly below / above plain, `↓†` / "
+        "`↑†`: below / above pessimistic (Welch, p < 0.05, each test alone: 36 of them); in "
+        "parentheses the paper's number. Reference rows: hand-written controllers over "
         f"{settings['controller_episodes']} episodes (no learning).",
         "",
     ]
@@ -519,14 +546,17 @@ def tables_markdown(result: dict) -> str:
     lines += table(result, "target_distance", "Final distance to the target", False)
     lines += table(result, "hazard_distance", "Average distance to the hazard centre", False)
     lines += table(result, "return", "Return (environment reward per robot and episode)", False)
+    lines += table(result, "learning_danger_steps", "Dangerous robot-steps during training, "
+                   "from the start of learning to the end (the paper's cumulative training "
+                   "danger)", False, digits=0)
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
     lines += [
         "### Behaviour on the hidden obstacle",
         "",
         "The followers' closest approach to the obstacle's surface: every robot but the first "
         "to arrive, counting only robots that end in the target area (keeping away by giving "
-        "up does not count); mean over seeds, 95% CI. The paper: with CCR the followers steer "
-        "away before touching.",
+        "up does not count); mean over the seeds that had such a follower (n: those seeds of "
+        "all), 95% CI. The paper: with CCR the followers steer away before touching.",
         "",
         "| | " + " | ".join(VARIANTS) + " |",
         "|---|" + "---|" * len(VARIANTS),
@@ -536,16 +566,16 @@ def tables_markdown(result: dict) -> str:
             _cell_text(by_key[("hidden_obstacle", algo, v)]["followers_closest_successful"],
                        False) for v in VARIANTS) + " |")
     lines.append("")
-    not_levelled = [r for r in result["records"] if r["variant"] == "plain"
-                    and r["return_plateau"].get("plateaued") is False]
+    plain_records = [r for r in result["records"] if r["variant"] == "plain"]
+    not_levelled = [r for r in plain_records if r["return_plateau"].get("plateaued") is False]
+    undetermined = [r for r in plain_records if r["return_plateau"].get("plateaued") is None]
     lines += [
         "### Did the plain learners converge?",
         "",
         "The plain learner's evaluated return has plateaued if the mean of its last 20% of "
-        "evaluations lies within the 95% interval of the 20% before. "
-        + ("It did in every cell." if not not_levelled else
-           "It did **not** in: " + ", ".join(f"{r['scenario']} {LEARNER_NAMES[r['algo']]}"
-                                             for r in not_levelled) + "."),
+        "evaluations lies within the 95% interval of the 20% before (passing means the test "
+        "found no rise: a slow rise smaller than that interval passes). "
+        + _convergence_text(not_levelled, undetermined),
         "",
         "### Aggregates over the 9 scenario x learner pairs (rliable)",
         "",
@@ -600,9 +630,13 @@ def tables_markdown(result: dict) -> str:
         "### Scorecard: do the paper's claims hold here?",
         "",
         f"* CCR's danger below plain's in {c['danger_lower_vs_plain']['cells']} of 9 cells "
-        f"({c['danger_lower_vs_plain']['significant']} significantly); the paper: 8 of 9.",
+        f"({c['danger_lower_vs_plain']['significant']} significantly, "
+        f"{c['danger_lower_vs_plain']['significant_holm']} after Holm's correction over the "
+        "9); the paper: 8 of 9.",
         f"* below pessimistic's in {c['danger_lower_vs_pessimistic']['cells']} of 9 "
-        f"({c['danger_lower_vs_pessimistic']['significant']} significantly); the paper: 9 of 9.",
+        f"({c['danger_lower_vs_pessimistic']['significant']} significantly, "
+        f"{c['danger_lower_vs_pessimistic']['significant_holm']} after Holm); the paper: 9 "
+        "of 9.",
         f"* hidden-obstacle success above both baselines for "
         f"{c['hidden_obstacle_success_above_both']['learners']} of 3 learners "
         f"({c['hidden_obstacle_success_above_both']['significant']} significantly); the "
@@ -610,6 +644,19 @@ def tables_markdown(result: dict) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _convergence_text(not_levelled: list[dict], undetermined: list[dict]) -> str:
+    def names(records: list[dict]) -> str:
+        return ", ".join(f"{r['scenario']} {LEARNER_NAMES[r['algo']]}" for r in records)
+
+    if not not_levelled and not undetermined:
+        return "It did in every cell."
+    text = f"It did **not** in: {names(not_levelled)}." if not_levelled else ""
+    if undetermined:
+        text += (" " if text else "") + (f"Too few evaluations or seeds to tell in: "
+                                         f"{names(undetermined)}.")
+    return text
 
 
 def _probability(value: dict) -> str:
@@ -631,17 +678,22 @@ def draw_figures(cells, out: Path) -> list[Path]:
         draw_progress_matched(panels, path, title=f"{SCENARIO_NAMES[scenario]}: dangerous-"
                               "behaviour frequency against return along training")
         written.append(path)
+    metrics = ("return", "danger_frequency", "success_rate", "learning_danger_steps")
+    for scenario in SCENARIOS:
+        for algo in ALGOS:
+            curves = Curves()
+            for variant in VARIANTS:
+                cell = cells[(scenario, algo, variant)]
+                steps = np.asarray(cell["history"]["env_steps"][0])
+                curves.add(LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant], steps,
+                           {m: np.asarray(cell["history"][m]) for m in metrics})
+            path = out / f"curves_{scenario}_{algo}.png"
+            draw_curves(curves, path, metrics=metrics,
+                        title=f"{SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}: plain, "
+                        "pessimistic and CCR during training")
+            written.append(path)
     plain = cells[("hidden_obstacle", "maddpg", "plain")]
     ccr = cells[("hidden_obstacle", "maddpg", "ccr")]
-    curves = Curves()
-    metrics = ("danger_frequency", "success_rate", "learning_danger_steps")
-    for label, cell in (("MADDPG", plain), ("MADDPG+CCR", ccr)):
-        steps = np.asarray(cell["history"]["env_steps"][0])
-        curves.add(label, steps, {m: np.asarray(cell["history"][m]) for m in metrics})
-    path = out / "curves_hidden_obstacle_maddpg.png"
-    draw_curves(curves, path, metrics=metrics,
-                title="hidden obstacle: MADDPG vs MADDPG+CCR during training")
-    written.append(path)
     path = out / "trajectories_hidden_obstacle_maddpg.png"
     draw_trajectories(plain, ccr, path)
     written.append(path)
