@@ -217,3 +217,14 @@ def test_an_experiment_refuses_a_folder_of_another_experiment(search, budgets, t
                          experiment="python experiments/search.py")
     refused(budgets, ["--out", str(out)], capsys, "holds the results of python "
             "experiments/search.py, not python experiments/budgets.py")
+
+
+def test_welch_marks_say_which_way_ccr_differs(tables):
+    """A significant difference is marked with its direction; a non-significant one is not
+    marked at all, whichever its sign."""
+    marks = {"plain": {"significant": True, "difference": -0.1, "p": 0.01},
+             "pessimistic": {"significant": True, "difference": 0.2, "p": 0.02}}
+    assert tables.welch_symbols(marks) == " ↓* ↑†"
+    marks["plain"]["significant"] = False
+    assert tables.welch_symbols(marks) == " ↑†"
+    assert tables.welch_symbols({}) == ""
