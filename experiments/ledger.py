@@ -16,6 +16,7 @@ import dataclasses
 import json
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -115,6 +116,8 @@ def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
 def check_out(out: Path, force: bool) -> str | None:
     """Why ``out`` may not be written (``None`` if it may): committed results under
     ``experiments/results/`` are replaced only with ``--force``."""
+    if out.exists() and not out.is_dir():
+        return f"--out {out} is a file, not a folder"
     try:
         inside = out.resolve().is_relative_to(RESULTS.resolve())
     except OSError:
@@ -133,7 +136,8 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
     compiles; then the compilation cache, the folder and this invocation's record."""
     try:
         settings = settings_of()
-        problem = check_out(out, force) or check_experiment(out, prog)
+        problem = check_out(out, force) or check_experiment(out, prog,
+                                                            settings_record(settings), force)
         if problem:
             raise cli.UsageError(problem)
     except (cli.UsageError, ValueError) as error:
@@ -203,13 +207,28 @@ def read_ledger(folder: Path) -> dict[str, Any] | None:
     return ledger
 
 
-def check_experiment(folder: Path, experiment: str) -> str | None:
-    """Why ``folder`` cannot take ``experiment``'s results (``None`` if it can): it holds
-    another experiment's (the searches and the budgets name their cells alike)."""
+def check_experiment(folder: Path, experiment: str, settings: dict[str, Any],
+                     force: bool) -> str | None:
+    """Why ``folder`` cannot take ``experiment``'s results made with ``settings`` (a
+    settings record; ``None`` if it can): it holds another experiment's (the searches and
+    the budgets name their cells alike), or the other search's (``variant``), or, unless
+    ``force``, cells made with other settings, which would be trained again over them."""
     ledger = read_ledger(folder)
-    found = ledger.get("experiment") if ledger else None
+    if not ledger:
+        return None
+    found = ledger.get("experiment")
     if found is not None and found != experiment:
         return f"{folder} holds the results of {found}, not {experiment}"
+    old = ledger["settings"]
+    if old.get("variant", settings.get("variant")) != settings.get("variant"):
+        return (f"{folder} holds the {old['variant']} search's results, not the "
+                f"{settings['variant']} search's: name another --out")
+    if not force and not same_cells(old, settings):
+        differing = sorted({key for algo in ALGOS
+                            for key, value in cell_identity(settings, algo).items()
+                            if cell_identity(old, algo).get(key) != value})
+        return (f"{folder} holds cells made with other settings ({', '.join(differing)}): "
+                "give --force to train over them, or name another --out")
     return None
 
 
@@ -225,7 +244,8 @@ class Ledger:
         self.previous = (list(old["invocations"])
                          if old and same_cells(old["settings"], self.settings) else [])
         self.start = time.perf_counter()
-        self.current = {"command": command, "commit": git_commit(), "device": device_name(),
+        self.current = {"id": uuid.uuid4().hex,  # one invocation, however often copied
+                        "command": command, "commit": git_commit(), "device": device_name(),
                         "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),
                         "finished": False, "programs_trained": 0, "wall_time_s": 0.0}
 

@@ -58,7 +58,11 @@ def ledger_of(folder: Path) -> dict[str, Any]:
 
 def record_key(record: dict[str, Any]) -> tuple:
     """One invocation, however often its record was copied: a record copied while the
-    invocation ran and again after it ended has the same key."""
+    invocation ran and again after it ended has the same key. Records carry a unique
+    ``id`` since 2026-11-24; older ones are told apart by command, commit, device and
+    minute (two started in the same minute merge into one)."""
+    if "id" in record:
+        return ("id", record["id"])
     return tuple(record.get(k) for k in ("command", "commit", "device", "date"))
 
 
@@ -133,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(copies)} cell(s) copied into {into / 'cells'}: "
           f"{', '.join(copies) or 'none'}; {new} invocation record(s) added. Run the "
           "experiment's command on it again, naming the scenarios and learners to summarise, "
-          "to rebuild its summary (it trains nothing for the cells it holds).")
+          "to rebuild its summary (it trains nothing for the cells it holds; a search's "
+          "selection is the protocol's only over all 9 pairs).")
     return 0
 
 

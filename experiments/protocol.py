@@ -19,6 +19,7 @@ from ccrjax.training import TrainConfig
 TABLE_SEEDS = tuple(range(0, 10))
 SELECTION_SEEDS = (100, 101, 102)
 BUDGET_SEED_OFFSET = 200  # experiments/budgets.py
+BUDGET_SEEDS = tuple(range(BUDGET_SEED_OFFSET, BUDGET_SEED_OFFSET + 3))
 
 # Environment steps per run, per learner, chosen on the plain learners only
 # (experiments/budgets.py, seeds 200-202, on an H100 before the obstacle's corner fix):

@@ -126,13 +126,37 @@ def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
     return rows
 
 
+def not_the_protocols(settings: Settings) -> str | None:
+    """Why a selection made with ``settings`` is not the protocol's choice (``None`` if it
+    is): the rule averages over all 9 scenario x learner pairs, on the selection seeds,
+    over the protocol's values, budgets and evaluations. Such a selection is provisional:
+    the tables refuse it."""
+    _, values = protocol.SEARCHED[settings.variant]
+    missing = [f"{s}-{a}" for s in SCENARIOS for a in ALGOS
+               if s not in settings.scenarios or a not in settings.algos]
+    reasons = [
+        *(["the quick mode"] if settings.quick else []),
+        *([f"{len(missing)} of 9 pairs missing ({', '.join(missing)})"] if missing else []),
+        *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
+          else []),
+        *([f"values {list(settings.values)}"] if settings.values != values else []),
+        *([f"--steps {settings.steps}"] if settings.steps is not None else []),
+        *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
+          != (protocol.EVAL_EVERY, protocol.EVAL_EPISODES) else []),
+    ]
+    return "; ".join(reasons) or None
+
+
 def selection(settings: Settings, cells: dict) -> dict[str, Any]:
     metrics = {m: np.array([[cell["rows"][i][m]["per_seed"] for cell in cells.values()]
                             for i in range(1, len(settings.grid_values))])
                for m in EVAL_METRICS}  # [values, pairs, seeds]
     reference = {m: np.array([cell["rows"][0][m]["per_seed"] for cell in cells.values()])
                  for m in EVAL_METRICS}
-    return select(protocol.RULE, settings.values, metrics, reference)
+    chosen = select(protocol.RULE, settings.values, metrics, reference)
+    why_not = not_the_protocols(settings)
+    return {**chosen, "pairs": len(cells), "protocol": why_not is None,
+            "provisional_because": why_not}
 
 
 def _cell_text(stats: dict, percent: bool) -> str:
@@ -170,7 +194,9 @@ def search_markdown(result: dict) -> str:
         "",
         f"**Rule** (fixed before the search): {chosen['rule']}.",
         "",
-        f"**Chosen: {parameter} = {chosen['value']:g}**"
+        (f"**Chosen: {parameter} = {chosen['value']:g}**" if chosen.get("protocol") else
+         f"**Provisional, not the protocol's choice ({chosen.get('provisional_because')}): "
+         f"{parameter} = {chosen['value']:g}**")
         + (" (no value met the rule: the one closest to plain's success)"
            if chosen["fallback"] else "") + ".",
         "",
@@ -235,10 +261,12 @@ def settings_from(args: argparse.Namespace) -> Settings:
         fields["steps"] = args.steps
     count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
-    if set(fields["seeds"]) & set(protocol.TABLE_SEEDS) and not args.quick:
-        raise cli.UsageError(f"--seed-offset {args.seed_offset} overlaps the tables' seeds "
-                             f"{protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]}: selection "
-                             "seeds must be disjoint from them")
+    for name, taken in (("the tables'", protocol.TABLE_SEEDS),
+                        ("the budgets'", protocol.BUDGET_SEEDS)):
+        if set(fields["seeds"]) & set(taken) and not args.quick:
+            raise cli.UsageError(f"--seed-offset {args.seed_offset} overlaps {name} seeds "
+                                 f"{taken[0]}-{taken[-1]}: selection seeds must be disjoint "
+                                 "from them")
     return Settings(**fields)
 
 
@@ -288,8 +316,10 @@ def main(argv: list[str] | None = None) -> int:
                           for (s, a), cell in ordered.items()}, parameter,
                          out / "tradeoff_pairs.png")
     print(search_markdown(result))
-    print(f"chose {parameter} = {result['selection']['value']:g}; wrote {out / 'search.md'}, "
-          f"search.json, tradeoff.png, tradeoff_pairs.png")
+    chosen = result["selection"]
+    print(f"chose {parameter} = {chosen['value']:g}"
+          + ("" if chosen["protocol"] else f" (provisional: {chosen['provisional_because']})")
+          + f"; wrote {out / 'search.md'}, search.json, tradeoff.png, tradeoff_pairs.png")
     return 0
 
 

@@ -788,7 +788,14 @@ def selected(variant: str, given: float | None, quick: bool) -> tuple[float, str
         option = "--lam" if variant == "ccr" else "--penalty"
         raise cli.UsageError(f"no {variant} search result at {path}: run experiments/search.py "
                              f"--variant {variant} first, or give {option}")
-    return float(search["selection"]["value"]), f"selected by the search in {path.parent.name}"
+    chosen = search["selection"]
+    if not chosen.get("protocol"):
+        option = "--lam" if variant == "ccr" else "--penalty"
+        why = chosen.get("provisional_because") or "made before selections said so"
+        raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
+                             f"({why}): finish it on all 9 pairs at the protocol's settings, "
+                             f"or give {option}")
+    return float(chosen["value"]), f"selected by the search in {path.parent.name}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,6 +4,7 @@ before learning starts, and an ``--out`` that would overwrite committed results.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import sys
@@ -61,6 +62,7 @@ def refused(module, argv, capsys, *fragments):
     (["--variant", "ccr", "--seeds", "1"], ("--seeds",)),
     (["--variant", "ccr", "--values", "0"], ("--values",)),
     (["--variant", "ccr", "--seed-offset", "5"], ("overlaps the tables' seeds",)),
+    (["--variant", "ccr", "--seed-offset", "200"], ("overlaps the budgets' seeds",)),
     (["--variant", "ccr", "--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
 ])
 def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
@@ -228,3 +230,61 @@ def test_welch_marks_say_which_way_ccr_differs(tables):
     marks["plain"]["significant"] = False
     assert tables.welch_symbols(marks) == " ↑†"
     assert tables.welch_symbols({}) == ""
+
+
+def test_an_out_that_is_a_file_is_refused(search, tmp_path, capsys):
+    afile = tmp_path / "notes.md"
+    afile.write_text("x")
+    refused(search, ["--variant", "ccr", "--out", str(afile)], capsys, "is a file")
+
+
+def test_a_search_never_trains_over_the_other_searchs_or_other_settings_cells(
+        search, tmp_path, capsys):
+    """The two searches share a program and cell names: a lambda search into the penalty
+    search's folder is refused whatever the flags; cells made with other settings are only
+    trained over with --force."""
+    command = "python experiments/search.py"
+    penalty = results_folder(tmp_path / "pessimistic", {"variant": "pessimistic"}, [], {},
+                             experiment=command)
+    for flags in ([], ["--force"]):
+        refused(search, ["--variant", "ccr", "--out", str(penalty), *flags], capsys,
+                "holds the pessimistic search's results")
+    other = results_folder(tmp_path / "other", {"variant": "ccr", "seeds": [100, 101]}, [], {},
+                           experiment=command)
+    refused(search, ["--variant", "ccr", "--out", str(other)], capsys,
+            "cells made with other settings", "--force")
+
+
+def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path, capsys,
+                                                       monkeypatch):
+    """A selection over fewer than the 9 pairs (or at other settings) is provisional, and
+    the tables refuse it."""
+    full = search.Settings(variant="ccr", values=(0.3, 1.0, 3.0, 10.0, 30.0, 100.0))
+    assert search.not_the_protocols(full) is None
+    narrow = dataclasses.replace(full, algos=("iddpg", "maddpg"))
+    assert "3 of 9 pairs missing" in search.not_the_protocols(narrow)
+    quick = dataclasses.replace(full, quick=True, seeds=(100, 101))
+    assert "the quick mode" in search.not_the_protocols(quick)
+    assert "seeds" in search.not_the_protocols(quick)
+    searches = tmp_path / "searches"
+    for variant, protocol_choice in (("ccr", False), ("pessimistic", True)):
+        (searches / variant).mkdir(parents=True)
+        (searches / variant / "search.json").write_text(json.dumps({"selection": {
+            "value": 3.0, "protocol": protocol_choice,
+            "provisional_because": "3 of 9 pairs missing"}}))
+    monkeypatch.setattr(tables, "SEARCHES", searches)
+    refused(tables, ["--out", str(tmp_path / "never")], capsys, "not the protocol's choice",
+            "3 of 9 pairs missing", "--lam")
+
+
+def test_merge_keeps_two_invocations_started_in_the_same_minute(merge, tmp_path):
+    """Records with ids are one invocation each (a crash and its relaunch share command,
+    commit, device and minute); copies of one record (same id) stay one."""
+    settings = {"seeds": [200, 201], "steps": None}
+    first, relaunch = ({**record("a"), "id": name} for name in ("x1", "x2"))
+    source = results_folder(tmp_path / "source", settings, [first, relaunch], {})
+    into = results_folder(tmp_path / "into", settings, [{**first, "wall_time_s": 0.5}], {})
+    assert merge.main([str(source), "--into", str(into)]) == 0
+    ledger = json.loads((into / "invocations.json").read_text())
+    assert sorted((r["id"], r["wall_time_s"]) for r in ledger["invocations"]) == [
+        ("x1", 1.0), ("x2", 1.0)]

@@ -181,6 +181,8 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert result["parameter"] == "penalty"
     assert [row["value"] for row in result["aggregate"]] == [0.0, 0.1, 1.0]
     assert result["selection"]["value"] in (0.1, 1.0)
+    assert not result["selection"]["protocol"]  # one pair, quick: provisional
+    assert "the quick mode" in result["selection"]["provisional_because"]
     assert result["pairs"][0]["device"].startswith("cpu")
     for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
@@ -230,7 +232,11 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert "2 of 2 programs already done; 0 to train" in capsys.readouterr().err
     cell = json.loads((out / "budgets.json").read_text())["cells"][0]
     assert [c["budget"] for c in cell["checks"]] == [1000, 2000, 3000, 4000]
-    longer = [*wider, "--steps", "4200"]  # other cells: trained again, records start again
-    assert budgets.main(longer) == 0
+    longer = [*wider, "--steps", "4200"]  # other cells: refused, then trained over with --force
+    with pytest.raises(SystemExit) as refusal:
+        budgets.main(longer)
+    assert refusal.value.code == 2
+    assert "cells made with other settings (budget" in capsys.readouterr().err
+    assert budgets.main([*longer, "--force"]) == 0
     runs = json.loads((out / "invocations.json").read_text())["invocations"]
     assert [r["programs_trained"] for r in runs] == [2]
