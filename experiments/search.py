@@ -36,12 +36,14 @@ import protocol
 from ledger import (
     Partial,
     add_checkpoint_option,
+    cell_budget,
     cell_path,
     device_name,
     duration,
     log,
     open_experiment,
     plan_pairs,
+    read_json,
     settings_record,
 )
 
@@ -112,6 +114,25 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
     }
 
 
+def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None:
+    """For the lambda search, the penalty search's cells of the same pairs, when its folder
+    (``pessimistic`` beside ``out``) holds them all with the same seeds and budgets: their
+    value 0 is exactly the plain learner, while lambda 0 still observes the shared scores.
+    ``None`` otherwise (then no check is made)."""
+    if settings.variant != "ccr":
+        return None
+    found = {}
+    for scenario, algo in cells:
+        cell = read_json(cell_path(out.parent / "pessimistic", scenario, algo))
+        if (not cell or cell_budget(cell) != settings.budget(algo)
+                or cell.get("settings", {}).get("seeds") != list(settings.seeds)
+                or cell.get("settings", {}).get("quick") != settings.quick
+                or cell.get("grid_values", [None])[0] != 0.0):
+            return None
+        found[(scenario, algo)] = cell
+    return found
+
+
 def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
     """Per value, each seed's metric averaged over the pairs, then the mean and interval
     over seeds (the points of ``tradeoff.png``)."""
@@ -147,12 +168,16 @@ def not_the_protocols(settings: Settings) -> str | None:
     return "; ".join(reasons) or None
 
 
-def selection(settings: Settings, cells: dict) -> dict[str, Any]:
+def selection(settings: Settings, cells: dict, reference_cells: dict | None = None
+              ) -> dict[str, Any]:
+    """The rule applied to the cells; the reference is each cell's value 0, or the value-0
+    rows of ``reference_cells`` (the same pairs) if given."""
     metrics = {m: np.array([[cell["rows"][i][m]["per_seed"] for cell in cells.values()]
                             for i in range(1, len(settings.grid_values))])
                for m in EVAL_METRICS}  # [values, pairs, seeds]
-    reference = {m: np.array([cell["rows"][0][m]["per_seed"] for cell in cells.values()])
-                 for m in EVAL_METRICS}
+    reference_cells = cells if reference_cells is None else reference_cells
+    reference = {m: np.array([reference_cells[pair]["rows"][0][m]["per_seed"]
+                              for pair in cells]) for m in EVAL_METRICS}
     chosen = select(protocol.RULE, settings.values, metrics, reference)
     why_not = not_the_protocols(settings)
     return {**chosen, "pairs": len(cells), "protocol": why_not is None,
@@ -199,6 +224,11 @@ def search_markdown(result: dict) -> str:
          f"{parameter} = {chosen['value']:g}**")
         + (" (no value met the rule: the one closest to plain's success)"
            if chosen["fallback"] else "") + ".",
+        *(["", f"The same rule with the penalty search's value-0 runs (exactly plain, the same "
+           f"seeds, pairs and budgets) as the reference instead of lambda 0 (whose robots "
+           f"observe the shared scores): {parameter} = "
+           f"{result['selection_against_exact_plain']['value']:g}."]
+          if result.get("selection_against_exact_plain") else []),
         "",
         "## Averaged over the scenario x learner pairs",
         "",
@@ -298,11 +328,14 @@ def main(argv: list[str] | None = None) -> int:
     ordered = {pair: cells[pair] for pair in
                [(s, a) for s in settings.scenarios for a in settings.algos]}
     parameter, _ = protocol.SEARCHED[settings.variant]
+    plain_cells = exact_plain_cells(settings, out, ordered)
     result = {
         "settings": settings_record(settings), "parameter": parameter,
         "budgets": {a: settings.budget(a) for a in settings.algos},
         "invocations": ledger.invocations,
         "selection": selection(settings, ordered),
+        "selection_against_exact_plain": (None if plain_cells is None else
+                                          selection(settings, ordered, plain_cells)),
         "aggregate": aggregate_rows(settings, ordered),
         "pairs": [{k: cell[k] for k in ("scenario", "algo", "rows", "plain_return_plateau",
                                          "train_s", "compile_s", "device", "commit")}

@@ -288,3 +288,20 @@ def test_merge_keeps_two_invocations_started_in_the_same_minute(merge, tmp_path)
     ledger = json.loads((into / "invocations.json").read_text())
     assert sorted((r["id"], r["wall_time_s"]) for r in ledger["invocations"]) == [
         ("x1", 1.0), ("x2", 1.0)]
+
+
+def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
+    """Made-up rows over one pair and two seeds: against lambda 0's success (0.9) only
+    lambda 2 is within 5 points; against the exact plain runs' (0.88), lambda 1 is too, and
+    its lower danger wins."""
+    def row(value, success, danger):
+        return {"value": value, **{m: {"per_seed": [x, x]} for m, x in (
+            ("success_rate", success), ("danger_frequency", danger), ("return", -30.0),
+            ("target_distance", 0.1), ("hazard_distance", 0.5))}}
+
+    settings = search.Settings(variant="ccr", values=(1.0, 2.0), seeds=(100, 101))
+    cells = {("turbulence", "iddpg"): {"rows": [row(0.0, 0.9, 0.4), row(1.0, 0.84, 0.1),
+                                                row(2.0, 0.88, 0.2)]}}
+    exact = {("turbulence", "iddpg"): {"rows": [row(0.0, 0.88, 0.4)]}}
+    assert search.selection(settings, cells)["value"] == 2.0
+    assert search.selection(settings, cells, exact)["value"] == 1.0
