@@ -3,6 +3,8 @@
     python experiments/tables.py --out experiments/results/tables --force   # the grid
     python experiments/tables.py --out runs/tables                          # elsewhere
     python experiments/tables.py --quick --out /tmp/q     # a tiny budget, for the tests
+    python experiments/tables.py --algos maac --scenarios turbulence --out runs/lane1
+                                  # part of the grid (lanes); the tables once all 18 exist
 
 Trains the grid 3 scenarios x 3 learners x 3 variants (plain, pessimistic, CCR) under
 the protocol of ``docs/protocol.md`` (``experiments/protocol.py``): the tables' seeds
@@ -21,7 +23,10 @@ the machine, so their times below are upper bounds): IDDPG about 6,700, MADDPG a
 and MAAC about 250 environment steps per second. The grid is 30 runs of 3,000,000 steps per
 scenario and learner, so on that CPU it would take about 11 h (IDDPG) + up to 19 h
 (MADDPG) + up to 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about
-460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000). Cells
+460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000). One whole
+program measured on that CPU: the lambda search's strong-wind IDDPG program, 21 CCR runs of
+3M steps, trained in 2h15m (2026-11-23), so a table pair's 30 IDDPG runs take about 3h15m
+there. Cells
 are resumable across invocations, so the grid can be spread over several; the program in
 training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
@@ -131,6 +136,10 @@ class Settings:
     behaviour_episodes: int = 64
     controller_episodes: int = 1024
     quick: bool = False
+    # Which programs this invocation trains (not what a cell holds): the grid can be split
+    # over invocations, e.g. lanes side by side on one GPU; the tables need all 18.
+    scenarios: tuple[str, ...] = SCENARIOS
+    algos: tuple[str, ...] = ALGOS
 
     def budget(self, algo: str) -> int:
         return protocol.budget(algo, self.steps)
@@ -233,8 +242,26 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
 
 
 def jobs_of(settings: Settings) -> list[Job]:
+    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
     return [Job(scenario, algo, variants) for scenario in SCENARIOS for algo in ALGOS
+            if scenario in settings.scenarios and algo in settings.algos
             for variants in (("plain", "pessimistic"), ("ccr",))]
+
+
+def missing_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
+    """Every cell of the whole grid found in ``out`` (made with ``settings``), and the
+    names of the programs still missing."""
+    cells, missing = {}, []
+    for job in [Job(s, a, v) for s in SCENARIOS for a in ALGOS
+                for v in (("plain", "pessimistic"), ("ccr",))]:
+        found = [read_cell(cell_path(out, job.scenario, job.algo, v), settings)
+                 for v in job.variants]
+        if all(found):
+            cells.update({(job.scenario, job.algo, v): c
+                          for v, c in zip(job.variants, found, strict=True)})
+        else:
+            missing.append(job.name)
+    return cells, missing
 
 
 def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial
@@ -765,6 +792,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--penalty", type=cli.non_negative_float, default=None,
                         help="the pessimistic penalty (default: the penalty search's choice, "
                         f"{SEARCHES / 'pessimistic' / 'search.json'})")
+    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+                        help="train only these scenarios' programs (default: all three; the "
+                        "tables are written once all 18 programs exist)")
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
+                        help="train only these learners' programs (default: all three)")
     parser.add_argument("--quick", action="store_true",
                         help="a tiny budget and tiny networks: checks the pipeline in minutes")
     parser.add_argument("--out", type=Path, default=None,
@@ -819,6 +851,8 @@ def main(argv: list[str] | None = None) -> int:
         if set(fields["seeds"]) & set(protocol.SELECTION_SEEDS):
             raise cli.UsageError(f"--seed-offset {offset}: the tables' seeds must not overlap "
                                  f"the selection seeds {protocol.SELECTION_SEEDS}")
+        fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
+        fields["algos"] = tuple(dict.fromkeys(args.algos))
         settings = Settings(lam=lam, penalty=penalty, **fields)
         for job in jobs_of(settings):  # every configuration validated before compiling
             for variant in job.variants:
@@ -826,10 +860,16 @@ def main(argv: list[str] | None = None) -> int:
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
-    cells, trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
+    _, trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
     ledger.record(trained, finished=True)
+    cells, missing = missing_cells(out, settings)
+    if missing:
+        print(f"{18 - len(missing)} of 18 programs made in {out}; the tables need them all "
+              f"(missing: {', '.join(missing)}): run again naming the others, or all")
+        return 0
     controllers = reference_rows(settings)
-    result = summary(cells, settings, ledger.invocations, controllers, sources)
+    whole = dataclasses.replace(settings, scenarios=SCENARIOS, algos=ALGOS)  # all 18 exist
+    result = summary(cells, whole, ledger.invocations, controllers, sources)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))
     figures = draw_figures(cells, out)

@@ -240,3 +240,17 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert budgets.main([*longer, "--force"]) == 0
     runs = json.loads((out / "invocations.json").read_text())["invocations"]
     assert [r["programs_trained"] for r in runs] == [2]
+
+
+def test_a_narrower_invocation_trains_its_programs_and_waits_for_the_rest(tables, tmp_path,
+                                                                          capsys):
+    """--scenarios and --algos split the grid (lanes side by side on a GPU): the named
+    programs are trained, and the tables are written only when all 18 exist."""
+    out = tmp_path / "lane"
+    argv = ["--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--out", str(out)]
+    assert tables.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "2 of 18 programs made" in printed and "strong_wind-maac-ccr" in printed
+    assert sorted(p.name for p in (out / "cells").iterdir()) == [
+        f"turbulence-iddpg-{v}.json" for v in ("ccr", "pessimistic", "plain")]
+    assert not (out / "tables.md").exists()
