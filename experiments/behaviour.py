@@ -10,7 +10,8 @@ into it and the others steer away before touching it, warned by the leaders'
 emergency scores, so that "robots trained with CCR-aided MADDPG get much farther
 to the obstacle".
 
-This script trains MADDPG and MADDPG+CCR (lambda 30) on ``hidden_obstacle``, the
+This script trains MADDPG and MADDPG+CCR (lambda 30 unless ``--lam``: an exploration; the
+tables measure the same with the searched lambda) on ``hidden_obstacle``, the
 same seeds, every seed of both in one program, then runs the same fresh
 evaluation episodes (same starts, same obstacles) with each trained team and
 measures, per episode:
@@ -19,7 +20,7 @@ measures, per episode:
   within ``--reach`` of the obstacle's surface (robots that never do come last,
   ordered by their closest approach);
 * each robot's closest approach to the obstacle's surface during the episode
-  (negative inside the soft wall), and its average distance to the obstacle's
+  (negative if its centre is inside the obstacle), and its average distance to the obstacle's
   centre (the paper's metric).
 
 ``plain_distance`` and ``ccr_distance`` are the mean closest approach of the robots

@@ -6,8 +6,8 @@ obstacle, while others steer away from it" (paper, Behavioral Analysis). To comp
 on this, each robot of each recorded episode gets its *arrival rank* (the order in which
 robots first come within ``reach`` of the obstacle's surface; robots that never do come
 last, the closer ones first) and two distances: its closest approach to the obstacle's
-surface (negative inside the soft wall) and its average distance to the obstacle's centre
-over the episode (the paper's "average distance to the obstacle").
+surface (negative if its centre is inside the obstacle) and its average distance to the
+obstacle's centre over the episode (the paper's "average distance to the obstacle").
 
 Plain numpy on recorded episodes (:attr:`ccrjax.training.grid.GridRuns.episodes`).
 """
