@@ -305,3 +305,15 @@ def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
     exact = {("turbulence", "iddpg"): {"rows": [row(0.0, 0.88, 0.4)]}}
     assert search.selection(settings, cells)["value"] == 2.0
     assert search.selection(settings, cells, exact)["value"] == 1.0
+
+
+@pytest.mark.parametrize("argv, fragments", [
+    (["--seed-offset", "0"], ("overlap the tables' seeds 0-9",)),
+    (["--seed-offset", "99"], ("overlap the selection's seeds 100-102",)),
+    (["--seeds", "1"], ("--seeds",)),
+    (["--reach", "-1"], ("--reach",)),
+    (["--lam", "-2"], ("--lam",)),
+])
+def test_the_behaviour_exploration_refuses_bad_input_and_the_protocols_seeds(argv, fragments,
+                                                                              capsys):
+    refused(load("behaviour"), argv, capsys, *fragments)
