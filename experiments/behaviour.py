@@ -138,12 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     seeds = list(range(args.seed_offset, args.seed_offset + args.seeds))
-    for name, taken in (("the tables'", protocol.TABLE_SEEDS),
-                        ("the selection's", protocol.SELECTION_SEEDS),
-                        ("the budgets'", protocol.BUDGET_SEEDS)):
-        if set(seeds) & set(taken):
-            cli.fail(parser.prog, f"--seed-offset {args.seed_offset}: seeds {seeds[0]}-"
-                     f"{seeds[-1]} overlap {name} seeds {taken[0]}-{taken[-1]}")
+    problem = protocol.seed_overlap(seeds, args.seed_offset, protocol.SEED_SETS)
+    if problem:
+        cli.fail(parser.prog, problem)
 
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)

@@ -71,8 +71,7 @@ YES_NO = {True: "yes", False: "**no**", None: "too few evaluations"}
 class Settings:
     """What every cell is trained and checked with (a cell made otherwise is redone)."""
 
-    seeds: tuple[int, ...] = tuple(range(protocol.BUDGET_SEED_OFFSET,
-                                         protocol.BUDGET_SEED_OFFSET + 3))
+    seeds: tuple[int, ...] = protocol.BUDGET_SEEDS
     steps: int | None = None  # None: the protocol's budget of each learner
     eval_every: int = protocol.EVAL_EVERY
     eval_episodes: int = protocol.EVAL_EPISODES
@@ -244,12 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     seeds = tuple(range(args.seed_offset, args.seed_offset + args.seeds))
-    taken = set(protocol.TABLE_SEEDS) | set(protocol.SELECTION_SEEDS)
-    if set(seeds) & taken:
-        raise cli.UsageError(
-            f"--seed-offset {args.seed_offset}: the budget seeds must stay clear of the "
-            f"tables' seeds {protocol.TABLE_SEEDS[0]}-{protocol.TABLE_SEEDS[-1]} and the "
-            f"selection seeds {protocol.SELECTION_SEEDS[0]}-{protocol.SELECTION_SEEDS[-1]}")
+    problem = protocol.seed_overlap(seeds, args.seed_offset, ("the tables'", "the selection"))
+    if problem:
+        raise cli.UsageError(problem)
     # --quick changes the defaults (tiny sizes); what is given on the command line stays.
     defaults = ({"steps": 10 * protocol.QUICK_STEPS, "eval_every": protocol.QUICK_EVAL_EVERY,
                  "eval_episodes": protocol.QUICK_EVAL_EPISODES,

@@ -8,6 +8,7 @@ evaluation settings. ``experiments/search.py`` and ``experiments/tables.py`` rea
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 from ccrjax.agents.ddpg import DDPGConfig
@@ -20,6 +21,20 @@ TABLE_SEEDS = tuple(range(0, 10))
 SELECTION_SEEDS = (100, 101, 102)
 BUDGET_SEED_OFFSET = 200  # experiments/budgets.py
 BUDGET_SEEDS = tuple(range(BUDGET_SEED_OFFSET, BUDGET_SEED_OFFSET + 3))
+SEED_SETS = {"the tables'": TABLE_SEEDS, "the selection": SELECTION_SEEDS,
+             "the budgets'": BUDGET_SEEDS}
+
+
+def seed_overlap(seeds: Sequence[int], offset: int, against: Sequence[str]) -> str | None:
+    """Why ``seeds`` (from ``--seed-offset offset``) may not be used (``None`` if they
+    may): they overlap one of the seed sets named in ``against`` (keys of
+    :data:`SEED_SETS`). Each purpose keeps seeds of its own."""
+    for name in against:
+        taken = SEED_SETS[name]
+        if set(seeds) & set(taken):
+            return (f"--seed-offset {offset} overlaps {name} seeds {taken[0]}-{taken[-1]}: "
+                    "each purpose of docs/protocol.md keeps seeds of its own")
+    return None
 
 # Environment steps per run, per learner, chosen on the plain learners only
 # (experiments/budgets.py, seeds 200-202, on an H100 before the obstacle's corner fix):

@@ -291,12 +291,10 @@ def settings_from(args: argparse.Namespace) -> Settings:
         fields["steps"] = args.steps
     count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
-    for name, taken in (("the tables'", protocol.TABLE_SEEDS),
-                        ("the budgets'", protocol.BUDGET_SEEDS)):
-        if set(fields["seeds"]) & set(taken) and not args.quick:
-            raise cli.UsageError(f"--seed-offset {args.seed_offset} overlaps {name} seeds "
-                                 f"{taken[0]}-{taken[-1]}: selection seeds must be disjoint "
-                                 "from them")
+    problem = protocol.seed_overlap(fields["seeds"], args.seed_offset,
+                                    ("the tables'", "the budgets'"))
+    if problem and not args.quick:
+        raise cli.UsageError(problem)
     return Settings(**fields)
 
 

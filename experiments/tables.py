@@ -848,9 +848,9 @@ def main(argv: list[str] | None = None) -> int:
             "seeds", protocol.TABLE_SEEDS)[0]
         count = args.seeds or len(fields.get("seeds", protocol.TABLE_SEEDS))
         fields["seeds"] = tuple(range(offset, offset + count))
-        if set(fields["seeds"]) & set(protocol.SELECTION_SEEDS):
-            raise cli.UsageError(f"--seed-offset {offset}: the tables' seeds must not overlap "
-                                 f"the selection seeds {protocol.SELECTION_SEEDS}")
+        problem = protocol.seed_overlap(fields["seeds"], offset, ("the selection",))
+        if problem:
+            raise cli.UsageError(problem)
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
         settings = Settings(lam=lam, penalty=penalty, **fields)

@@ -308,8 +308,8 @@ def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
 
 
 @pytest.mark.parametrize("argv, fragments", [
-    (["--seed-offset", "0"], ("overlap the tables' seeds 0-9",)),
-    (["--seed-offset", "99"], ("overlap the selection's seeds 100-102",)),
+    (["--seed-offset", "0"], ("overlaps the tables' seeds 0-9",)),
+    (["--seed-offset", "99"], ("overlaps the selection seeds 100-102",)),
     (["--seeds", "1"], ("--seeds",)),
     (["--reach", "-1"], ("--reach",)),
     (["--lam", "-2"], ("--lam",)),
