@@ -36,7 +36,7 @@ import protocol
 from ledger import (
     Partial,
     add_checkpoint_option,
-    cell_budget,
+    cell_is_current,
     cell_path,
     device_name,
     duration,
@@ -121,13 +121,14 @@ def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None
     ``None`` otherwise (then no check is made)."""
     if settings.variant != "ccr":
         return None
+    # What the penalty search's cells hold when made with these seeds, budgets and
+    # evaluations (its own protocol values).
+    record = settings_record(dataclasses.replace(
+        settings, variant="pessimistic", values=protocol.SEARCHED["pessimistic"][1]))
     found = {}
     for scenario, algo in cells:
         cell = read_json(cell_path(out.parent / "pessimistic", scenario, algo))
-        if (not cell or cell_budget(cell) != settings.budget(algo)
-                or cell.get("settings", {}).get("seeds") != list(settings.seeds)
-                or cell.get("settings", {}).get("quick") != settings.quick
-                or cell.get("grid_values", [None])[0] != 0.0):
+        if not cell_is_current(cell, record):
             return None
         found[(scenario, algo)] = cell
     return found

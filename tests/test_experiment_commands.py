@@ -317,3 +317,24 @@ def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
 def test_the_behaviour_exploration_refuses_bad_input_and_the_protocols_seeds(argv, fragments,
                                                                               capsys):
     refused(load("behaviour"), argv, capsys, *fragments)
+
+
+def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_cells(
+        search, tmp_path):
+    """Beside ``<out>`` = ``.../ccr``, ``.../pessimistic`` holds a penalty cell made with the
+    same seeds and budget: it is used; one made with another budget is not."""
+    settings = search.Settings(variant="ccr", values=(0.3, 1.0, 3.0, 10.0, 30.0, 100.0))
+    penalty = dataclasses.replace(settings, variant="pessimistic",
+                                  values=(0.03, 0.1, 0.3, 1.0, 3.0, 10.0))
+    cells = {("turbulence", "iddpg"): {}}
+    (tmp_path / "pessimistic" / "cells").mkdir(parents=True)
+    path = tmp_path / "pessimistic" / "cells" / "turbulence-iddpg.json"
+    cell = {"algo": "iddpg", "settings": json.loads(json.dumps(dataclasses.asdict(penalty))),
+            "budget": 3_000_000, "rows": []}
+    path.write_text(json.dumps(cell))
+    found = search.exact_plain_cells(settings, tmp_path / "ccr", cells)
+    assert found == {("turbulence", "iddpg"): cell}
+    path.write_text(json.dumps({**cell, "budget": 2_000_000}))
+    assert search.exact_plain_cells(settings, tmp_path / "ccr", cells) is None
+    pessimistic_search = dataclasses.replace(settings, variant="pessimistic")
+    assert search.exact_plain_cells(pessimistic_search, tmp_path / "ccr", cells) is None
