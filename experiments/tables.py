@@ -241,44 +241,43 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     return cells
 
 
-def jobs_of(settings: Settings) -> list[Job]:
-    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
+def grid_jobs() -> list[Job]:
+    """The whole grid's 18 programs."""
     return [Job(scenario, algo, variants) for scenario in SCENARIOS for algo in ALGOS
-            if scenario in settings.scenarios and algo in settings.algos
             for variants in (("plain", "pessimistic"), ("ccr",))]
 
 
-def missing_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
-    """Every cell of the whole grid found in ``out`` (made with ``settings``), and the
+def jobs_of(settings: Settings) -> list[Job]:
+    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
+    return [job for job in grid_jobs()
+            if job.scenario in settings.scenarios and job.algo in settings.algos]
+
+
+def job_cells(out: Path, job: Job, settings: Settings) -> dict[str, dict] | None:
+    """A program's cells in ``out`` by variant, if all were made with ``settings``."""
+    found = [read_cell(cell_path(out, job.scenario, job.algo, v), settings)
+             for v in job.variants]
+    return dict(zip(job.variants, found, strict=True)) if all(found) else None
+
+
+def grid_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
+    """Every cell of the whole grid found in ``out`` by (scenario, algo, variant), and the
     names of the programs still missing."""
     cells, missing = {}, []
-    for job in [Job(s, a, v) for s in SCENARIOS for a in ALGOS
-                for v in (("plain", "pessimistic"), ("ccr",))]:
-        found = [read_cell(cell_path(out, job.scenario, job.algo, v), settings)
-                 for v in job.variants]
-        if all(found):
-            cells.update({(job.scenario, job.algo, v): c
-                          for v, c in zip(job.variants, found, strict=True)})
-        else:
+    for job in grid_jobs():
+        found = job_cells(out, job, settings)
+        if found is None:
             missing.append(job.name)
+        else:
+            cells.update({(job.scenario, job.algo, v): c for v, c in found.items()})
     return cells, missing
 
 
-def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial
-             ) -> tuple[dict, int]:
-    """Trains every missing cell (compiling the next program while one trains); returns
-    the cells by (scenario, algo, variant) and the number of programs trained."""
+def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) -> int:
+    """Trains every missing program of ``settings`` (compiling the next program while one
+    trains); returns the number of programs trained."""
     jobs = jobs_of(settings)
-    cells: dict[tuple[str, str, str], dict] = {}
-    todo = []
-    for job in jobs:
-        found = [read_cell(cell_path(out, job.scenario, job.algo, v), settings)
-                 for v in job.variants]
-        if all(found):
-            for variant, cell in zip(job.variants, found, strict=True):
-                cells[(job.scenario, job.algo, variant)] = cell
-        else:
-            todo.append(job)
+    todo = [job for job in jobs if job_cells(out, job, settings) is None]
     log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to train "
         f"({len(settings.seeds)} seeds per cell, budgets "
         f"{ {a: settings.budget(a) for a in ALGOS} }, on {device_name()})")
@@ -300,12 +299,11 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial
             for variant, cell in cells_of(job, runs, settings).items():
                 write_atomic(cell_path(out, job.scenario, job.algo, variant),
                              json.dumps(cell) + "\n")
-                cells[(job.scenario, job.algo, variant)] = cell
             partial.discard(job.name)
             job.training = None  # free the compiled program
             ledger.record(number + 1)
             log(progress.finished(number, runs.run_s + runs.compile_s))
-    return cells, len(todo)
+    return len(todo)
 
 
 def reference_rows(settings: Settings) -> dict[tuple[str, str], dict[str, float]]:
@@ -501,8 +499,8 @@ def welch_symbols(marks: dict) -> str:
 
 def _cell_text(record_metric: dict, percent: bool, digits: int = 2) -> str:
     scale, unit = (100.0, "%") if percent else (1.0, "")
-    finite = record_metric["mean"] is not None and np.isfinite(record_metric["mean"])
-    text = format_mean_ci(record_metric, percent, digits) if finite else "none"
+    text = (format_mean_ci(record_metric, percent, digits) if np.isfinite(record_metric["mean"])
+            else "none")
     if "seeds_measured" in record_metric:
         text += f" (n={record_metric['seeds_measured']})"
     text += welch_symbols(record_metric.get("welch", {}))
@@ -860,11 +858,12 @@ def main(argv: list[str] | None = None) -> int:
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
-    _, trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
+    trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
     ledger.record(trained, finished=True)
-    cells, missing = missing_cells(out, settings)
+    cells, missing = grid_cells(out, settings)
     if missing:
-        print(f"{18 - len(missing)} of 18 programs made in {out}; the tables need them all "
+        total = len(grid_jobs())
+        print(f"{total - len(missing)} of {total} programs made in {out}; the tables need them all "
               f"(missing: {', '.join(missing)}): run again naming the others, or all")
         return 0
     controllers = reference_rows(settings)
