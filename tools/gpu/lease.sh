@@ -141,8 +141,9 @@ tests() {
   mkdir -p "$ROOT/checks"
   local t0
   t0=$SECONDS
-  "$PY" -m pytest -n 4 --dist loadfile -m "not slow" -p no:cacheprovider \
-    > "$ROOT/checks/test.log" 2>&1 && echo "make test: passed" || echo "make test: FAILED"
+  # -rfE names every failure in the log's last lines; the timeout keeps the call's margin.
+  timeout "${TESTS_TIMEOUT:-480}" "$PY" -m pytest -n 4 --dist loadfile -m "not slow" \
+    -p no:cacheprovider -rfE --tb=line > "$ROOT/checks/test.log" 2>&1 && echo "make test: passed" || echo "make test: FAILED"
   echo "  $((SECONDS - t0)) s: $(tail -1 "$ROOT/checks/test.log")"
   t0=$SECONDS
   "$PY" -m ccrjax.train --scenario hidden_obstacle --algo maddpg --variant ccr --seeds 3 \
