@@ -134,7 +134,7 @@ def boolean(text: str) -> bool:
 def _converter(annotation: Any, default: Any) -> tuple[Callable[[str], Any], str]:
     """The converter and metavar for a dataclass field of type ``annotation``."""
     kind = typing.get_origin(annotation) or annotation
-    if kind not in (bool, int, float, tuple):
+    if kind not in (bool, int, float, tuple, str):
         kind = type(default)
     if kind is bool:
         return boolean, "BOOL"
@@ -144,6 +144,8 @@ def _converter(annotation: Any, default: Any) -> tuple[Callable[[str], Any], str
         return (lambda text: _number(text, float)), "X"
     if kind is tuple:
         return int_tuple, "W1,W2"
+    if kind is str:
+        return str, "NAME"
     raise TypeError(f"no command-line type for {annotation!r}")
 
 

@@ -14,7 +14,8 @@ design. The bands (from the paper's plain rows):
 * turbulence: go-to-goal danger 40-55%, success >= 90%;
 * strong wind: go-to-goal danger 20-35%, success 60-90%;
 * hidden obstacle: go-to-goal danger >= 35%, success <= 40%;
-* every scenario: oracle success >= 80%, danger <= 5%; gaming policies success <= 5%.
+* every scenario: oracle success >= 80%, danger <= 5%; gaming policies success <= 5%;
+  the same with MAAC's discrete actions (``box9``).
 
 It prints, and writes to ``<out>/calibration.md`` and ``calibration.json``:
 
@@ -23,7 +24,12 @@ It prints, and writes to ``<out>/calibration.md`` and ``calibration.json``:
    plain rows beside them, and whether each band holds;
 2. the trade-off behind each default: the main size parameter of each scenario
    varied around its default, with the go-to-goal and oracle rows (a larger hazard
-   raises the go-to-goal danger but lengthens the oracle's detour).
+   raises the go-to-goal danger but lengthens the oracle's detour);
+3. the discrete action sets (MAAC acts with discrete actions; the paper does not say
+   which): every controller snapped to the nearest action of ``box9`` (``{-1, 0, 1}^2``,
+   the set MAAC uses) and the go-to-goal and oracle snapped to the MPE's five (none, -x,
+   +x, -y, +y), whose force lies in the unit L1 ball where the continuous force fills the
+   box ``[-1, 1]^2``: the table that shows why MAAC uses ``box9``.
 """
 
 from __future__ import annotations
@@ -60,19 +66,36 @@ SWEEPS = {
     "hidden_obstacle": ("length_range", [(0.6, 1.4), (1.0, 1.6), (1.2, 2.0), (1.6, 2.4)]),
 }
 PAPER_LEARNERS = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+# The discrete action sets measured, and the controllers measured with each: MAAC's set
+# (box9) meets every band the continuous actions do; the MPE's five only shows its cost.
+ACTION_SET_CONTROLLERS = {"box9": None, "mpe5": ("go_to_goal", "oracle")}  # None: all
 
 
 def measure(scenario: str, controller: str, episodes: int, seed: int,
-            params: dict[str, Any] | None = None) -> dict[str, float]:
-    """One controller's metrics over ``episodes`` episodes of one scenario."""
-    env = CCREnv(scenario, num_envs=episodes, scenario_params=params)
+            params: dict[str, Any] | None = None, action_set: str | None = None
+            ) -> dict[str, float]:
+    """One controller's metrics over ``episodes`` episodes of one scenario, with continuous
+    actions or snapped to the discrete ``action_set``."""
+    discrete = action_set is not None
+    env = CCREnv(scenario, num_envs=episodes, scenario_params=params, discrete_actions=discrete,
+                 **({"discrete_action_set": action_set} if discrete else {}))
     metrics = jax.jit(lambda key: evaluate_controller(env, controller, key))(
         jax.random.PRNGKey(seed)
     )
     return {name: float(metrics[name]) for name in METRICS}
 
 
-def band_checks(rows: dict[str, dict[str, dict[str, float]]]) -> list[dict[str, Any]]:
+def measure_action_sets(episodes: int, seed: int) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{action set: {scenario: {controller: metrics}}}`` (:data:`ACTION_SET_CONTROLLERS`)."""
+    return {
+        action_set: {s: {c: measure(s, c, episodes, seed, action_set=action_set)
+                         for c in (controllers or CONTROLLERS)} for s in SCENARIOS}
+        for action_set, controllers in ACTION_SET_CONTROLLERS.items()
+    }
+
+
+def band_checks(rows: dict[str, dict[str, dict[str, float]]],
+                action_sets: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Each band of the module docstring, its measured value and whether it holds."""
     checks = []
 
@@ -90,6 +113,14 @@ def band_checks(rows: dict[str, dict[str, dict[str, float]]]) -> list[dict[str, 
         check(f"{scenario}: oracle danger", oracle["danger_frequency"], 0.0, ORACLE_DANGER)
         for gaming in GAMING:
             check(f"{scenario}: {gaming} success", rows[scenario][gaming]["success_rate"],
+                  0.0, GAMING_SUCCESS)
+    for scenario, box9 in ((action_sets or {}).get("box9") or {}).items():
+        check(f"{scenario}, box9: oracle success", box9["oracle"]["success_rate"],
+              ORACLE_SUCCESS, 1.0)
+        check(f"{scenario}, box9: oracle danger", box9["oracle"]["danger_frequency"],
+              0.0, ORACLE_DANGER)
+        for gaming in GAMING:
+            check(f"{scenario}, box9: {gaming} success", box9[gaming]["success_rate"],
                   0.0, GAMING_SUCCESS)
     return checks
 
@@ -139,6 +170,21 @@ def markdown(result: dict[str, Any]) -> str:
             f"{_pct(blind['success_rate'])} | {_pct(blind['danger_frequency'])} | "
             f"{_pct(oracle['success_rate'])} | {_pct(oracle['danger_frequency'])} |"
         )
+    if result.get("action_sets"):
+        spaces = ["continuous", *result["action_sets"]]
+        lines += ["", "### Discrete action sets (MAAC's actions)", "",
+                  "Each controller's command snapped to the nearest action of the set; "
+                  "success / danger / return.", "",
+                  "| scenario | controller | " + " | ".join(spaces) + " |",
+                  "|---|---|" + "---|" * len(spaces)]
+        for scenario in SCENARIOS:
+            for controller in CONTROLLERS:
+                cells = [rows[scenario][controller]] + [
+                    result["action_sets"][space][scenario].get(controller)
+                    for space in spaces[1:]]
+                lines.append(f"| {scenario} | {controller} | " + " | ".join(
+                    "" if m is None else f"{_pct(m['success_rate'])} / "
+                    f"{_pct(m['danger_frequency'])} / {m['return']:.1f}" for m in cells) + " |")
     lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` "
               f"in {result['seconds']:.0f} s."]
     return "\n".join(lines) + "\n"
@@ -148,13 +194,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python experiments/calibrate.py",
         description="Reference controllers x scenarios: the table that justifies the "
-                    "scenario defaults (about 2 minutes on a 2-core CPU).",
+                    "scenario defaults (about 3 minutes on a 2-core CPU).",
     )
     parser.add_argument("--episodes", type=int, default=1024,
                         help="episodes (environments) per row (default 1024)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--no-sweeps", action="store_true",
                         help="skip the trade-off tables around the defaults")
+    parser.add_argument("--no-action-sets", action="store_true",
+                        help="skip the discrete action sets' table and bands")
     parser.add_argument("--out", type=Path, default=Path("runs/calibration"),
                         help="folder for calibration.md and calibration.json "
                              "(default runs/calibration)")
@@ -179,9 +227,11 @@ def main(argv: list[str] | None = None) -> int:
                     **{c: measure(scenario, c, args.episodes, args.seed, params)
                        for c in ("go_to_goal", "oracle")},
                 })
+    action_sets = {} if args.no_action_sets else measure_action_sets(args.episodes, args.seed)
     result = {
         "episodes": args.episodes, "seed": args.seed, "rows": rows, "sweeps": sweeps,
-        "checks": band_checks(rows), "commit": git_commit(),
+        "action_sets": action_sets, "checks": band_checks(rows, action_sets),
+        "commit": git_commit(),
         "command": " ".join(["python experiments/calibrate.py", *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }

@@ -17,7 +17,9 @@ pessimistic baseline) and the rows that bound what a learner can reach:
 
 Every controller is ``(world, key) -> action float32[N, 2, B]`` (continuous
 actions) and runs through :func:`ccrjax.training.acting.run_episode`, the loop and metrics
-that evaluate the learners.
+that evaluate the learners. In an environment with discrete actions (MAAC's), each
+command is snapped to the nearest action of the environment's set
+(:func:`snap_to_action_set`): what the same controller can do with those actions.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.world import DISCRETE_ACTION_SETS
 from ccrjax.training.acting import episode_metrics, run_episode
 from ccrjax.transforms import Plain
 
@@ -198,15 +201,30 @@ CONTROLLERS: dict[str, Callable[[CCREnv], Controller]] = {
 GAMING = ("stand_still", "flee_sideways", "overshoot", "dash_away")
 
 
+def snap_to_action_set(controller: Controller, action_set: str) -> Controller:
+    """``controller`` with each command replaced by the nearest (Euclidean; ties to the
+    lower index) action of the discrete ``action_set``: ``int32[N, B]`` actions."""
+    directions = jnp.asarray(DISCRETE_ACTION_SETS[action_set])  # [A, 2]
+
+    def act(world: WorldState, key: jax.Array) -> jax.Array:
+        command = controller(world, key)  # [N, 2, B]
+        gap = command[:, None] - directions[None, :, :, None]  # [N, A, 2, B]
+        return jnp.argmin(jnp.sum(gap * gap, axis=2), axis=1).astype(jnp.int32)
+
+    return act
+
+
 def evaluate_controller(env: CCREnv, name: str, key: jax.Array) -> dict[str, jax.Array]:
-    """The learners' evaluation metrics of controller ``name`` over ``env.num_envs`` episodes."""
+    """The learners' evaluation metrics of controller ``name`` over ``env.num_envs`` episodes
+    (snapped to the environment's discrete actions if it has them)."""
     if name not in CONTROLLERS:
         raise ValueError(f"controller must be one of {sorted(CONTROLLERS)}, got {name!r}")
+    controller = CONTROLLERS[name](env)
     if env.discrete_actions:
-        raise ValueError("the reference controllers need continuous actions")
+        controller = snap_to_action_set(controller, env.discrete_action_set)
     transform = Plain()
     _, episode = run_episode(
-        env, transform, transform.init(env), None, False, key,
-        controller=CONTROLLERS[name](env),
+        env, transform, transform.init(env), None, env.discrete_actions, key,
+        controller=controller,
     )
     return episode_metrics(episode)

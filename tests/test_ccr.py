@@ -132,8 +132,12 @@ def test_features_and_discrete_commands():
         features, [1, 2, 3, 5, 7, 4, 6, 10, 14, 9, 15, 21, 25, 35, 49]
     )
     assert polynomial_features(x, 5).shape == (1, 126, 1)
-    # Discrete commands are unit directions: none, -x, +x, -y, +y.
-    command = np.asarray(command_vector(jnp.arange(5, dtype=jnp.int32)[None], True))
+    # Discrete commands are the action set's entries in {-1, 0, 1}^2: the default box9...
+    command = np.asarray(command_vector(jnp.arange(9, dtype=jnp.int32)[None], True))
+    np.testing.assert_array_equal(command[0].T, [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1],
+                                                 [-1, -1], [-1, 1], [1, -1], [1, 1]])
+    # ... or the MPE's five: none, -x, +x, -y, +y.
+    command = np.asarray(command_vector(jnp.arange(5, dtype=jnp.int32)[None], True, "mpe5"))
     np.testing.assert_array_equal(command[0].T, [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]])
     # Continuous commands are clipped like the simulator clips them.
     clipped = command_vector(jnp.asarray([[[2.0], [-0.5]]]), False)
@@ -303,7 +307,7 @@ TINY_ENV = dict(num_robots=2, num_envs=4, episode_length=6, discrete_actions=Tru
 
 
 def random_discrete_actions(obs, key):
-    return jax.random.randint(key, obs.shape[:2], 0, 5, jnp.int32)
+    return jax.random.randint(key, obs.shape[:2], 0, 9, jnp.int32)
 
 
 def unjitted_episode(env, transform, state, act, key):

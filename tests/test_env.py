@@ -164,7 +164,7 @@ def test_brax_registry():
     for name in NAMES:
         env = brax.envs.get_environment(f"ccr_{name}", num_robots=2, discrete_actions=True)
         assert isinstance(env, CCREnv) and env.scenario.name == name
-        assert env.action_size == 5
+        assert env.action_size == 9
         assert env.observation_size == 4 + 3 + 3 + env.scenario.hazard_feature_size
 
 
@@ -637,13 +637,19 @@ def test_jit_equals_no_jit(compiled):
             assert_trees_equal(at(jitted_steps, t), eager, atol=1e-5)
 
 
-def test_discrete_actions_are_the_mpe_unit_forces():
+@pytest.mark.parametrize("action_set", ["box9", "mpe5"])
+def test_discrete_actions_are_their_continuous_commands(action_set):
     # Discrete action a moves a robot exactly as the continuous action DIRECTIONS[a].
     continuous = CCREnv("hidden_obstacle", num_robots=N, num_envs=B)
-    discrete = CCREnv("hidden_obstacle", num_robots=N, num_envs=B, discrete_actions=True)
-    assert discrete.action_size == 5 and continuous.action_size == 2
+    discrete = CCREnv("hidden_obstacle", num_robots=N, num_envs=B, discrete_actions=True,
+                      discrete_action_set=action_set)
+    directions = {"box9": [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1],
+                           [-1, -1], [-1, 1], [1, -1], [1, 1]],
+                  "mpe5": [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]]}[action_set]
+    assert discrete.action_size == len(directions) and continuous.action_size == 2
     action = jnp.array([[0, 1, 2, 3], [4, 0, 1, 2], [3, 4, 0, 1]], jnp.int32)
-    directions = jnp.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]], jnp.float32)
+    action = (action + jnp.array([[0], [0], [4]], jnp.int32)) % len(directions)
+    directions = jnp.array(directions, jnp.float32)
     as_force = jnp.moveaxis(directions[action], -1, 1)  # [N, 2, B]
 
     @jax.jit
@@ -669,7 +675,7 @@ def test_random_actions_helper():
     discrete = CCREnv("nominal", num_robots=N, num_envs=64, discrete_actions=True)
     choice = np.asarray(env_random_actions(jax.random.key(0, impl="rbg"), discrete))
     assert choice.shape == (N, 64) and np.issubdtype(choice.dtype, np.integer)
-    assert set(np.unique(choice)) == {0, 1, 2, 3, 4}
+    assert set(np.unique(choice)) == set(range(9))  # box9, the default set
 
 
 # --------------------------------------------------------------------------- bad input

@@ -135,9 +135,35 @@ def test_evaluate_controller_rejects_bad_input(controllers):
     env = CCREnv("nominal", num_envs=2)
     with pytest.raises(ValueError, match="controller must be one of"):
         controllers.evaluate_controller(env, "teleport", jax.random.key(0))
-    discrete = CCREnv("nominal", num_envs=2, discrete_actions=True)
-    with pytest.raises(ValueError, match="continuous actions"):
-        controllers.evaluate_controller(discrete, "oracle", jax.random.key(0))
+
+
+def test_snapping_to_a_discrete_action_set(controllers):
+    def constant(command):
+        return lambda world, key: jnp.broadcast_to(
+            jnp.asarray(command, jnp.float32)[None, :, None], world.position.shape)
+
+    world = CCREnv("nominal", num_envs=1).reset(jax.random.key(0)).pipeline_state
+    for command, box9, mpe5 in [((0.9, 0.8), 8, 2), ((0.2, -0.1), 0, 0), ((-0.1, -0.7), 3, 3),
+                                ((-0.8, 0.9), 6, 4)]:
+        for action_set, expected in (("box9", box9), ("mpe5", mpe5)):
+            action = controllers.snap_to_action_set(constant(command), action_set)(world, None)
+            assert action.dtype == jnp.int32 and action.shape == (5, 1)
+            assert np.all(np.asarray(action) == expected), (command, action_set)
+
+
+def test_the_oracle_needs_the_box_of_actions(controllers):
+    """Why MAAC's actions are box9: snapped to it, the oracle still detours round the hidden
+    obstacle; snapped to the MPE's five it cannot (experiments/calibrate.py measures all)."""
+    def measured(action_set, name):
+        env = CCREnv("hidden_obstacle", num_envs=EPISODES, discrete_actions=True,
+                     discrete_action_set=action_set)
+        return jax.jit(lambda key: controllers.evaluate_controller(env, name, key))(
+            jax.random.key(0))
+
+    box9, mpe5 = measured("box9", "oracle"), measured("mpe5", "oracle")
+    assert box9["success_rate"] >= 0.95 and box9["danger_frequency"] <= 0.01
+    assert mpe5["success_rate"] <= 0.05
+    assert measured("box9", "dash_away")["success_rate"] == 0.0
 
 
 class QuickCompile(types.ModuleType):
@@ -169,6 +195,13 @@ def test_calibrate_runs_at_a_small_size(controllers, tmp_path, monkeypatch):
             assert all(np.isfinite(value) for value in row.values())
             assert 0.0 <= row["success_rate"] <= 1.0 and 0.0 <= row["danger_frequency"] <= 1.0
     assert result["checks"] and all(isinstance(c["holds"], bool) for c in result["checks"])
+    # The discrete action sets: every controller with box9 (its bands checked), the
+    # go-to-goal and the oracle with the MPE's five.
+    assert set(result["action_sets"]) == {"box9", "mpe5"}
+    for scenario in SCENARIOS:
+        assert set(result["action_sets"]["box9"][scenario]) == set(controllers.CONTROLLERS)
+        assert set(result["action_sets"]["mpe5"][scenario]) == {"go_to_goal", "oracle"}
+    assert any(c["check"] == "hidden_obstacle, box9: oracle success" for c in result["checks"])
     text = (tmp_path / "calibration.md").read_text()
     for scenario in SCENARIOS:
         for controller in controllers.CONTROLLERS:

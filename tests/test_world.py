@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from ccrjax.envs.world import (
     DISCRETE_ACTION_DIRECTIONS,
+    DISCRETE_ACTION_SETS,
     PhysicsParams,
     action_to_force,
     contact_penetration,
@@ -299,10 +300,10 @@ def mpe_set_action(action, continuous):
 
 
 def test_discrete_actions_match_mpe2():
-    fn = jax.jit(action_to_force, static_argnums=(1, 2))
+    fn = jax.jit(action_to_force, static_argnums=(1, 2, 3))
     # All five actions for 5 robots, in 2 environments (second one reversed).
     action = jnp.array([[0, 4], [1, 3], [2, 2], [3, 1], [4, 0]], jnp.int32)
-    force = np.asarray(fn(action, 5.0, True))
+    force = np.asarray(fn(action, 5.0, True, "mpe5"))
     assert force.shape == (5, 2, 2)
     for i in range(5):
         for b in range(2):
@@ -310,8 +311,15 @@ def test_discrete_actions_match_mpe2():
             np.testing.assert_allclose(force[i, :, b], expected, atol=0)
     # The table itself: {none, -x, +x, -y, +y}.
     np.testing.assert_array_equal(
-        DISCRETE_ACTION_DIRECTIONS, [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]]
+        DISCRETE_ACTION_SETS["mpe5"], [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]]
     )
+    # The default box9 holds mpe5's five first, then the box's corners, each the sum of
+    # two of mpe5's forces (what mpe2 makes of a 5-way action with two entries set).
+    box9 = np.asarray(fn(jnp.arange(9, dtype=jnp.int32)[:, None], 5.0, True))[:, :, 0]
+    np.testing.assert_array_equal(box9[:5], force[:, :, 0])
+    for a, (x, y) in zip(range(5, 9), [(1, 3), (1, 4), (2, 3), (2, 4)], strict=True):
+        np.testing.assert_array_equal(box9[a], box9[x] + box9[y])
+    np.testing.assert_array_equal(DISCRETE_ACTION_DIRECTIONS, DISCRETE_ACTION_SETS["box9"])
 
 
 def test_continuous_action_matches_mpe2_five_way_encoding():

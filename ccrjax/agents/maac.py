@@ -1,9 +1,10 @@
 """MAAC: Multi-Actor-Attention-Critic (Iqbal & Sha 2019), a soft actor-critic with an
 attention critic over discrete actions.
 
-Each robot ``i`` has a stochastic policy ``pi_i(a | o_i)``, a softmax over the 5
-discrete actions computed by an MLP (two 128-unit leaky-ReLU layers). The critic
-gives every robot a Q value for each of its actions, attending over the others:
+Each robot ``i`` has a stochastic policy ``pi_i(a | o_i)``, a softmax over the ``A``
+discrete actions (9 by default, ``MAACConfig.action_set``) computed by an MLP (two
+128-unit leaky-ReLU layers). The critic gives every robot a Q value for each of its
+actions, attending over the others:
 
 * encoders, one per robot: ``e_j = leaky(W_j^e [o_j, onehot(a_j)])`` and
   ``s_i = leaky(W_i^s o_i)``;
@@ -62,8 +63,8 @@ from flax import struct
 from ccrjax.agents.networks import MLP, apply_per_robot, clip_by_global_norm_per_robot, mlp_flops
 from ccrjax.agents.types import Transition, soft_update
 from ccrjax.checks import check_finite, check_hidden, check_positive_int
+from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET, DISCRETE_ACTION_SETS
 
-NUM_ACTIONS = 5  # none, -x, +x, -y, +y
 REWARD_STD_EPS = 1e-6  # guards the reward normalisation against a zero spread
 
 
@@ -89,6 +90,8 @@ class MAACConfig:
     attention_regulariser: float = 1e-3  # weight of the attention-logit penalty
     policy_regulariser: float = 1e-3  # weight of the policy-logit penalty
     normalise_rewards: bool = True  # by the buffer's per-robot mean and std
+    # discrete actions: box9 ({-1, 0, 1}^2, the continuous box's reach) or mpe5 (the MPE's 5)
+    action_set: str = DEFAULT_DISCRETE_ACTION_SET
 
     def __post_init__(self) -> None:
         owner = "MAACConfig"
@@ -118,6 +121,14 @@ class MAACConfig:
             raise ValueError(
                 f"{owner}.normalise_rewards must be a bool, got {self.normalise_rewards!r}"
             )
+        if self.action_set not in DISCRETE_ACTION_SETS:
+            raise ValueError(f"{owner}.action_set must be one of {sorted(DISCRETE_ACTION_SETS)}, "
+                             f"got {self.action_set!r}")
+
+    @property
+    def num_actions(self) -> int:
+        """How many discrete actions each policy chooses among."""
+        return len(DISCRETE_ACTION_SETS[self.action_set])
 
     @property
     def head_dim(self) -> int:
@@ -157,8 +168,8 @@ def select(values: jax.Array, action: jax.Array) -> jax.Array:
 def baseline(all_q: jax.Array, probs: jax.Array) -> jax.Array:
     """Counterfactual baseline ``b_i = sum_a pi_i(a | o_i) Q_i(o, (a, a_-i))``, ``[B, N]``.
 
-    ``all_q``: ``[B, N, 5]`` from :meth:`MAAC.critic_values` (entry ``a`` of row ``i`` is
-    ``Q_i`` with robot ``i``'s action replaced by ``a``); ``probs``: ``[B, N, 5]``.
+    ``all_q``: ``[B, N, A]`` from :meth:`MAAC.critic_values` (entry ``a`` of row ``i`` is
+    ``Q_i`` with robot ``i``'s action replaced by ``a``); ``probs``: ``[B, N, A]``.
     """
     return jnp.sum(probs * all_q, axis=-1)
 
@@ -261,10 +272,11 @@ class MAAC:
         # The training loop normalises rewards by the buffer's statistics when asked.
         self.needs_reward_stats = config.normalise_rewards
         hidden = config.critic_hidden
-        self.policy_net = MLP(config.policy_hidden, NUM_ACTIONS, leaky)
+        self.num_actions = config.num_actions
+        self.policy_net = MLP(config.policy_hidden, self.num_actions, leaky)
         self.encoder = nn.Dense(hidden)
         self.state_encoder = nn.Dense(hidden)
-        self.head = MLP((hidden,), NUM_ACTIONS, leaky)
+        self.head = MLP((hidden,), self.num_actions, leaky)
         self.policy_optimiser = optax.adam(config.policy_lr)
         self.critic_optimiser = optax.chain(
             optax.add_decayed_weights(config.critic_weight_decay),  # L2 into the gradient
@@ -278,7 +290,7 @@ class MAAC:
         return {
             "policy": per_robot_shapes(self.policy_net, num_robots, obs_size),
             "critic": {
-                "encoder": per_robot_shapes(self.encoder, num_robots, obs_size + NUM_ACTIONS),
+                "encoder": per_robot_shapes(self.encoder, num_robots, obs_size + self.num_actions),
                 "state_encoder": per_robot_shapes(self.state_encoder, num_robots, obs_size),
                 "head": per_robot_shapes(self.head, num_robots, 2 * hidden),
                 # Shared by all robots; all heads side by side, head h in columns
@@ -308,14 +320,14 @@ class MAAC:
 
     # ------------------------------------------------------------ networks
     def policy_logits(self, policy_params: Any, obs: jax.Array) -> jax.Array:
-        """Logits of every robot's policy, ``[B, N, 5]``."""
+        """Logits of every robot's policy, ``[B, N, A]``."""
         return apply_per_robot(self.policy_net, policy_params, obs)
 
     def encode(
         self, critic_params: dict, obs: jax.Array, action: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
         """``e_j = leaky(f_j(o_j, onehot(a_j)))`` and ``s_i = leaky(g_i(o_i))``, ``[B, N, D]``."""
-        onehot = jax.nn.one_hot(action, NUM_ACTIONS, dtype=obs.dtype)
+        onehot = jax.nn.one_hot(action, self.num_actions, dtype=obs.dtype)
         e = leaky(
             apply_per_robot(self.encoder, critic_params["encoder"], jnp.concatenate(
                 [obs, onehot], axis=-1
@@ -327,7 +339,7 @@ class MAAC:
     def critic_values(
         self, critic_params: dict, obs: jax.Array, action: jax.Array
     ) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """``Q_i(o, (a, a_-i))`` for every action ``a`` of every robot, ``[B, N, 5]``,
+        """``Q_i(o, (a, a_-i))`` for every action ``a`` of every robot, ``[B, N, A]``,
         with the attention weights and logits of :func:`attend`."""
         e, s = self.encode(critic_params, obs, action)
         x, weights, logits = attend(critic_params["attention"], e, s, self.config.attention_heads)
@@ -359,7 +371,7 @@ class MAAC:
 
     def td_target(self, state: MAACState, batch: Transition, gumbel: jax.Array) -> jax.Array:
         """``y_i = r_i + gamma (1 - done) Q'_i(o', a') - log pi'_i(a'_i | o'_i) / reward_scale``
-        with ``a' ~ pi'(. | o')`` sampled with the Gumbel noise ``gumbel`` ``[B, N, 5]``
+        with ``a' ~ pi'(. | o')`` sampled with the Gumbel noise ``gumbel`` ``[B, N, A]``
         (:func:`sample_actions`); ``[B, N]``."""
         c = self.config
         next_action, next_log_pi = sample_actions(
@@ -387,7 +399,7 @@ class MAAC:
         num_robots = batch.reward.shape[1]
         # One draw of Gumbel noise samples both the target policies' next actions and the
         # current policies' actions (one random-number kernel per update).
-        gumbel = jax.random.gumbel(key, (2, *batch.reward.shape, NUM_ACTIONS))
+        gumbel = jax.random.gumbel(key, (2, *batch.reward.shape, self.num_actions))
         target = jax.lax.stop_gradient(self.td_target(state, batch, gumbel[0]))
 
         def critic_loss(params):
@@ -449,23 +461,25 @@ class MAAC:
     def flops_per_update(self, num_robots: int, obs_size: int) -> float:
         """Matrix-multiply FLOPs of one update: forward 1x, backward 2x per network pass.
 
-        Per robot and sample, a policy pass costs ``P = 2 (F h_1 + h_1 h_2 + 5 h_2)`` and
-        a critic pass ``C = 2 D (F + 5) + 2 D F`` (encoders) ``+ 3 * 2 D^2`` (keys,
+        Per robot and sample, a policy pass costs ``P = 2 (F h_1 + h_1 h_2 + A h_2)`` and
+        a critic pass ``C = 2 D (F + A) + 2 D F`` (encoders) ``+ 3 * 2 D^2`` (keys,
         queries, values of all heads) ``+ 2 * 2 N D`` (logits and weighted values over
-        all ``N`` robots, the masked one included) ``+ 2 (2 D D + 5 D)`` (head). One update:
+        all ``N`` robots, the masked one included) ``+ 2 (2 D D + A D)`` (head), for ``A``
+        actions. One update:
         target policy and target critic forward (``P + C``), critic loss forward and
         backward (``3 C``), policy loss forward and backward (``3 P``) with a forward
         pass of the updated critic (``C``): ``4 P + 5 C``, times batch and robots.
         """
         c = self.config
         d = c.critic_hidden
-        policy = mlp_flops([obs_size, *c.policy_hidden, NUM_ACTIONS])
+        actions = self.num_actions
+        policy = mlp_flops([obs_size, *c.policy_hidden, actions])
         critic = (
-            2 * d * (obs_size + NUM_ACTIONS)
+            2 * d * (obs_size + actions)
             + 2 * d * obs_size
             + 3 * 2 * d * d
             + 2 * 2 * num_robots * d
-            + mlp_flops([2 * d, d, NUM_ACTIONS])
+            + mlp_flops([2 * d, d, actions])
         )
         per_sample = 4 * policy + 5 * critic
         return float(np.float64(per_sample) * c.batch_size * num_robots)

@@ -38,7 +38,7 @@ class Learner(Protocol):
     """A multi-agent learner: pure functions over an immutable learner state."""
 
     name: str
-    # True for a discrete action space (5 choices), False for continuous 2-D forces.
+    # True for a discrete action space (an action set's index), False for continuous forces.
     discrete: bool
     # True if :meth:`normalise_rewards` must see every sampled batch with the replay
     # buffer's per-robot reward mean and standard deviation (MAAC's normalisation).

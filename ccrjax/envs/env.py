@@ -14,7 +14,7 @@ axis first:
 ``state.metrics["target_distance"]`` ``float32[N, B]``: ``|p_i - target_i|``
 ``state.metrics["hazard_distance"]`` ``float32[N, B]``: ``|p_i - hazard centre|``
 continuous action                  ``float[N, 2, B]`` in ``[-1, 1]^2``
-discrete action                    ``int[N, B]`` in {none, -x, +x, -y, +y}
+discrete action                    ``int[N, B]``, an index into the action set
 =================================  =========================================
 
 Robot ``i`` observes, in this order (``observation_size = 4 + 3 (N - 1) + 3 + H``):
@@ -61,7 +61,13 @@ from ccrjax.envs.scenarios.base import (
     start_positions,
     target_positions,
 )
-from ccrjax.envs.world import PhysicsParams, action_to_force, physics_step
+from ccrjax.envs.world import (
+    DEFAULT_DISCRETE_ACTION_SET,
+    DISCRETE_ACTION_SETS,
+    PhysicsParams,
+    action_to_force,
+    physics_step,
+)
 
 # brax pulls in MuJoCo's MJX, which prints to stdout when the optional NVIDIA Warp
 # is missing; keep our commands' output clean.
@@ -71,7 +77,6 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 MIN_ROBOTS, MAX_ROBOTS = 2, 64
 ROBOT_RADIUS = 0.05  # the MPE's agent size
-NUM_DISCRETE_ACTIONS = 5
 
 
 def check_team(scenario: Scenario, num_robots: int, episode_length: int,
@@ -108,7 +113,10 @@ class CCREnv(Env):
         seconds; the straight trip at full speed takes about 18 of them).
       robot_radius: disc radius (the MPE's default 0.05).
       sensitivity: force per unit action (the MPE's default 5).
-      discrete_actions: five discrete actions instead of a 2-D continuous force.
+      discrete_actions: discrete actions instead of a 2-D continuous force.
+      discrete_action_set: which discrete actions: ``"box9"`` (default: ``{-1, 0, 1}^2``,
+        every speed the continuous force reaches) or ``"mpe5"`` (the MPE's none, -x, +x,
+        -y, +y); :data:`ccrjax.envs.world.DISCRETE_ACTION_SETS` says why.
       layout: where robots start and go (:class:`ccrjax.envs.scenarios.Layout`).
       physics: physics constants (:class:`ccrjax.envs.world.PhysicsParams`).
       scenario_params: keyword parameters of the scenario, e.g. ``{"max_force": 5.0}``.
@@ -124,6 +132,7 @@ class CCREnv(Env):
         robot_radius: float = ROBOT_RADIUS,
         sensitivity: float = 5.0,
         discrete_actions: bool = False,
+        discrete_action_set: str = DEFAULT_DISCRETE_ACTION_SET,
         layout: Layout | None = None,
         physics: PhysicsParams | None = None,
         scenario_params: dict[str, Any] | None = None,
@@ -143,6 +152,9 @@ class CCREnv(Env):
         check_number("", "sensitivity", sensitivity, positive=True)
         if not isinstance(discrete_actions, bool):
             raise ValueError(f"discrete_actions must be True or False, got {discrete_actions!r}")
+        if discrete_action_set not in DISCRETE_ACTION_SETS:
+            raise ValueError(f"discrete_action_set must be one of {sorted(DISCRETE_ACTION_SETS)}, "
+                             f"got {discrete_action_set!r}")
         if layout is not None and not isinstance(layout, Layout):
             raise ValueError(f"layout must be a ccrjax.envs.scenarios.Layout, got {layout!r}")
         if physics is not None and not isinstance(physics, PhysicsParams):
@@ -154,6 +166,7 @@ class CCREnv(Env):
         self.robot_radius = float(robot_radius)
         self.sensitivity = float(sensitivity)
         self.discrete_actions = discrete_actions
+        self.discrete_action_set = discrete_action_set
         self.layout = layout or Layout()
         self.physics = physics or PhysicsParams()
         # For robot i, the indices of the other robots in increasing order: [N, N - 1].
@@ -170,8 +183,13 @@ class CCREnv(Env):
 
     @property
     def action_size(self) -> int:
-        """2 for the continuous force, 5 for the number of discrete choices."""
-        return NUM_DISCRETE_ACTIONS if self.discrete_actions else 2
+        """2 for the continuous force, else the number of discrete choices."""
+        return self.num_discrete_actions if self.discrete_actions else 2
+
+    @property
+    def num_discrete_actions(self) -> int:
+        """How many actions the discrete action set holds (whichever space is in use)."""
+        return len(DISCRETE_ACTION_SETS[self.discrete_action_set])
 
     @property
     def backend(self) -> str:
@@ -251,7 +269,8 @@ class CCREnv(Env):
         if self.discrete_actions:
             expected = (self.num_robots, self.num_envs)
             ok = action.shape == expected and jnp.issubdtype(action.dtype, jnp.integer)
-            what = f"int[{expected[0]}, {expected[1]}] (robots, envs) with values 0..4"
+            what = (f"int[{expected[0]}, {expected[1]}] (robots, envs) with values "
+                    f"0..{self.num_discrete_actions - 1}")
         else:
             expected = (self.num_robots, 2, self.num_envs)
             ok = action.shape == expected
@@ -265,7 +284,8 @@ class CCREnv(Env):
         Forces (actions, hazard), MPE physics, the hazard's constraint (the solid
         obstacle) and the clock; ``noise`` comes from ``scenario.step_noise``.
         """
-        force = action_to_force(action, self.sensitivity, self.discrete_actions)
+        force = action_to_force(action, self.sensitivity, self.discrete_actions,
+                                self.discrete_action_set)
         force = force + self.scenario.hazard_force(world.hazard, world.position, noise)
         position, velocity = physics_step(
             world.position, world.velocity, self.radius, force, self.physics
@@ -364,11 +384,11 @@ def random_actions(key: jax.Array, env: CCREnv) -> jax.Array:
     Continuous: ``float32[N, 2, B]`` uniform in ``[-1, 1)`` at 16-bit resolution,
     both components of a robot's force cut from one 32-bit random word (random
     numbers are a large share of a cheap step on CPU, so we draw half as many).
-    Discrete: ``int32[N, B]`` uniform in ``{0, ..., 4}``.
+    Discrete: ``int32[N, B]`` uniform over the action set.
     """
     shape = (env.num_robots, env.num_envs)
     if env.discrete_actions:
-        return jax.random.randint(key, shape, 0, NUM_DISCRETE_ACTIONS, jnp.int32)
+        return jax.random.randint(key, shape, 0, env.num_discrete_actions, jnp.int32)
     bits = jax.random.bits(key, shape, jnp.uint32)
     halves = jnp.stack([bits >> 16, bits & 0xFFFF], axis=1).astype(jnp.float32)
     return halves * (2.0 / 65536.0) - 1.0

@@ -57,7 +57,8 @@ def export_policy(run_folder: str | Path, program: TrainProgram, learner_state: 
 def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], jax.Array]:
     """The deterministic policy of ``seed`` trained in ``run_folder``: a jitted function
     from observations ``float32[batch, N, F]`` to actions (``float32[batch, N, 2]`` in
-    [-1, 1], or ``int32[batch, N]`` for MAAC's 5 discrete actions).
+    [-1, 1], or ``int32[batch, N]`` for MAAC's discrete actions, indices into its
+    ``MAACConfig.action_set``).
 
     Raises ``FileNotFoundError`` if the run exported no policy (it is written when a run
     finishes) and ``ValueError`` for a seed the run did not train.

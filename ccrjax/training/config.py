@@ -20,6 +20,7 @@ from ccrjax.agents.types import Learner
 from ccrjax.checks import check_int, check_positive_int
 from ccrjax.envs.env import CCREnv, check_team
 from ccrjax.envs.scenarios import SCENARIOS, make_scenario
+from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.transforms import VARIANTS, Pessimistic, Plain, Transform
 from ccrjax.transforms.ccr import CCR, CCRConfig
 
@@ -230,6 +231,8 @@ def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
         num_envs=num_envs,
         episode_length=config.episode_length,
         discrete_actions=config.algo == "maac",
+        discrete_action_set=(config.learner_config.action_set if config.algo == "maac"
+                             else DEFAULT_DISCRETE_ACTION_SET),
         scenario_params=dict(config.scenario_params),
     )
 

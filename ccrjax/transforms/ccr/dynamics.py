@@ -5,8 +5,8 @@ dynamics functions with learnable coefficients". Here it predicts robot ``i``'s
 own state ``s_t = (p_t, v_t)`` (position and velocity, 4 numbers):
 
 * inputs ``x = (v_{t-1}, u_{t-1})`` (4 numbers): the previous velocity and the
-  control command ``u in [-1, 1]^2``; for discrete actions ``u`` is the command's
-  unit direction (:data:`ccrjax.envs.world.DISCRETE_ACTION_DIRECTIONS`), never scaled
+  control command ``u in [-1, 1]^2``; for discrete actions ``u`` is the action's
+  command in ``{-1, 0, 1}^2`` (:data:`ccrjax.envs.world.DISCRETE_ACTION_SETS`), never scaled
   by a simulator constant (the model learns the gain itself);
 * outputs ``y = (p_t - p_{t-1}, v_t)``; the prediction is
   ``p_hat_t = p_{t-1} + y_hat[0:2]``, ``v_hat_t = y_hat[2:4]``;
@@ -71,7 +71,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from ccrjax.envs.world import DISCRETE_ACTION_DIRECTIONS
+from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET, discrete_command
 
 NUM_INPUTS = 4  # (v_x, v_y, u_x, u_y)
 NUM_OUTPUTS = 4  # (dp_x, dp_y, v_x, v_y)
@@ -127,19 +127,16 @@ def polynomial_features(inputs: jax.Array, degree: int) -> jax.Array:
     return features
 
 
-def command_vector(action: jax.Array, discrete: bool) -> jax.Array:
+def command_vector(action: jax.Array, discrete: bool,
+                   action_set: str = DEFAULT_DISCRETE_ACTION_SET) -> jax.Array:
     """The control command ``u`` of every robot, ``float32[N, 2, E]``.
 
     Continuous actions (``float[N, 2, E]``) are clipped to ``[-1, 1]`` as the
-    simulator does; discrete ones (``int[N, E]``) become their unit direction.
+    simulator does; discrete ones (``int[N, E]``) become their command in
+    ``action_set`` (:func:`ccrjax.envs.world.discrete_command`).
     """
     if discrete:
-        chex.assert_rank(action, 2)
-        directions = jnp.asarray(DISCRETE_ACTION_DIRECTIONS)  # [5, 2]
-        one_hot = action[:, None, :] == jnp.arange(5, dtype=action.dtype)[None, :, None]
-        ux = jnp.sum(jnp.where(one_hot, directions[None, :, 0, None], 0.0), axis=1)
-        uy = jnp.sum(jnp.where(one_hot, directions[None, :, 1, None], 0.0), axis=1)
-        return jnp.stack([ux, uy], axis=1)
+        return discrete_command(action, action_set)
     chex.assert_rank(action, 3)
     return jnp.clip(action.astype(jnp.float32), -1.0, 1.0)
 

@@ -133,6 +133,7 @@ class CCRState:
     statistics: dynamics.DynamicsStatistics
     coefficients: jax.Array  # float32[P, 4], fitted at the last episode start
     discrete_actions: bool = struct.field(pytree_node=False, default=False)
+    discrete_action_set: str = struct.field(pytree_node=False, default="box9")
     episode_length: int = struct.field(pytree_node=False, default=0)  # T: rows of transitions
 
 
@@ -170,6 +171,7 @@ class CCR:
             statistics=dynamics.init_statistics(self.config.degree),
             coefficients=dynamics.init_coefficients(self.config.degree),
             discrete_actions=env.discrete_actions,
+            discrete_action_set=env.discrete_action_set,
             episode_length=env.episode_length,
         )
 
@@ -210,7 +212,8 @@ class CCR:
         chex.assert_shape(next_env_state.reward, (num_robots, num_envs))
 
         own_state, next_own_state = obs[:, 0:4], next_obs[:, 0:4]  # (p, v) as observed
-        command = dynamics.command_vector(action, state.discrete_actions)
+        command = dynamics.command_vector(action, state.discrete_actions,
+                                          state.discrete_action_set)
         # phi(x) once, for the prediction and for the model's statistics.
         features = dynamics.polynomial_features(
             dynamics.model_inputs(own_state, command), config.degree
