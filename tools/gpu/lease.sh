@@ -59,7 +59,10 @@ running_lanes() {
     [[ -e "$pidfile" ]] || continue
     local name
     name="$(basename "$pidfile" .pid)"
-    [[ -e "$ROOT/lanes/$name.rc" ]] || echo "$name"
+    # Running: no exit status written yet and its process group still alive (a lane killed
+    # with its group never writes one).
+    [[ -e "$ROOT/lanes/$name.rc" ]] || ! kill -0 -- "-$(cat "$pidfile")" 2>/dev/null \
+      || echo "$name"
   done
 }
 
@@ -94,7 +97,8 @@ report() {
     [[ -e "$log" ]] || continue
     name="$(basename "$log" .log)"
     if [[ -e "$ROOT/lanes/$name.rc" ]]; then state="exit $(cat "$ROOT/lanes/$name.rc")"
-    else state="running"; fi
+    elif running_lanes | grep -qx "$name"; then state="running"
+    else state="killed"; fi
     printf '%-12s %-9s %s\n' "$name" "$state" "$(tr '\r' '\n' < "$log" | grep -v '^\s*$' | tail -1 | cut -c1-160)"
   done
   nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null || true
