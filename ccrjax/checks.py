@@ -36,6 +36,13 @@ def check_number(owner: str, name: str, value: Any, *, positive: bool) -> None:
                          f"got {value!r}")
 
 
+def check_choice(owner: str, name: str, value: Any, choices: Any) -> None:
+    """``ValueError`` naming the field unless ``value`` is one of ``choices``."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{_field(owner, name)} must be one of {sorted(choices)}, "
+                         f"got {value!r}")
+
+
 def check_positive_int(owner: str, name: str, value: Any) -> None:
     """``ValueError`` naming the field unless ``value`` is an integer > 0."""
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:

@@ -44,6 +44,7 @@ from typing import Any
 import jax
 
 from ccrjax.envs.env import CCREnv
+from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
 
@@ -76,9 +77,9 @@ def measure(scenario: str, controller: str, episodes: int, seed: int,
             ) -> dict[str, float]:
     """One controller's metrics over ``episodes`` episodes of one scenario, with continuous
     actions or snapped to the discrete ``action_set``."""
-    discrete = action_set is not None
-    env = CCREnv(scenario, num_envs=episodes, scenario_params=params, discrete_actions=discrete,
-                 **({"discrete_action_set": action_set} if discrete else {}))
+    env = CCREnv(scenario, num_envs=episodes, scenario_params=params,
+                 discrete_actions=action_set is not None,
+                 discrete_action_set=action_set or DEFAULT_DISCRETE_ACTION_SET)
     metrics = jax.jit(lambda key: evaluate_controller(env, controller, key))(
         jax.random.PRNGKey(seed)
     )

@@ -19,6 +19,7 @@ from ccrjax.agents.maac import (
     sample_actions,
 )
 from ccrjax.agents.types import Transition
+from ccrjax.envs.env import CCREnv
 from ccrjax.training import TrainConfig, make_train
 
 N, F, B = 3, 6, 8
@@ -411,6 +412,8 @@ def test_action_set_is_validated_and_sets_the_action_count():
     assert MAACConfig().num_actions == 9 and MAACConfig(action_set="mpe5").num_actions == 5
     with pytest.raises(ValueError, match="MAACConfig.action_set must be one of"):
         MAACConfig(action_set="mpe9")
+    with pytest.raises(ValueError, match=r"discrete_action_set must be one of \['box9', 'mpe5'\]"):
+        CCREnv("nominal", discrete_actions=True, discrete_action_set="box8")
     program = make_train(TrainConfig(algo="maac", learner=MAACConfig(action_set="mpe5"),
                                      total_env_steps=1000, learning_starts=200))
     assert program.env.action_size == 5 and program.learner.num_actions == 5

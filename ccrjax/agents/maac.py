@@ -62,7 +62,7 @@ from flax import struct
 
 from ccrjax.agents.networks import MLP, apply_per_robot, clip_by_global_norm_per_robot, mlp_flops
 from ccrjax.agents.types import Transition, soft_update
-from ccrjax.checks import check_finite, check_hidden, check_positive_int
+from ccrjax.checks import check_choice, check_finite, check_hidden, check_positive_int
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET, DISCRETE_ACTION_SETS
 
 REWARD_STD_EPS = 1e-6  # guards the reward normalisation against a zero spread
@@ -121,9 +121,7 @@ class MAACConfig:
             raise ValueError(
                 f"{owner}.normalise_rewards must be a bool, got {self.normalise_rewards!r}"
             )
-        if self.action_set not in DISCRETE_ACTION_SETS:
-            raise ValueError(f"{owner}.action_set must be one of {sorted(DISCRETE_ACTION_SETS)}, "
-                             f"got {self.action_set!r}")
+        check_choice(owner, "action_set", self.action_set, DISCRETE_ACTION_SETS)
 
     @property
     def num_actions(self) -> int:

@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from ccrjax.checks import check_int, check_number
+from ccrjax.checks import check_choice, check_int, check_number
 from ccrjax.envs.scenarios import SCENARIOS, Hazard, Layout, Scenario, make_scenario
 from ccrjax.envs.scenarios.base import (
     distance_to,
@@ -152,9 +152,7 @@ class CCREnv(Env):
         check_number("", "sensitivity", sensitivity, positive=True)
         if not isinstance(discrete_actions, bool):
             raise ValueError(f"discrete_actions must be True or False, got {discrete_actions!r}")
-        if discrete_action_set not in DISCRETE_ACTION_SETS:
-            raise ValueError(f"discrete_action_set must be one of {sorted(DISCRETE_ACTION_SETS)}, "
-                             f"got {discrete_action_set!r}")
+        check_choice("", "discrete_action_set", discrete_action_set, DISCRETE_ACTION_SETS)
         if layout is not None and not isinstance(layout, Layout):
             raise ValueError(f"layout must be a ccrjax.envs.scenarios.Layout, got {layout!r}")
         if physics is not None and not isinstance(physics, PhysicsParams):
