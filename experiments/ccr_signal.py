@@ -23,25 +23,35 @@ transitions come from uniformly random actions: on ``--warmup`` episodes of rand
 actions in the same scenario (its statistics are taken in at each episode's end); then
 one batch of ``--episodes`` episodes of the controller is measured with lambda = 1 (the
 share does not depend on lambda).
+
+``--matmul tf32`` measures the same with CCR's model computed as on a GPU: there JAX's
+default precision multiplies float32 matrices in TensorFloat32 (operands rounded to 10-bit
+mantissas, products summed in float32), which this CPU cannot do, so every matrix product
+of the model (its predictions and its fit's statistics) gets its operands rounded so first
+(:func:`tf32_model_products`).
 Writes ``<out>/ccr_signal.json`` and ``ccr_signal.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ccrjax.envs.env import CCREnv
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.acting import run_episode
+from ccrjax.transforms.ccr import dynamics, transform
 from ccrjax.transforms.ccr.transform import CCR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -50,6 +60,34 @@ from reference_controllers import CONTROLLERS  # noqa: E402
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 CONTACT_SLACK = 0.01
 TARGET_SHARE = 0.70
+MATMULS = ("float32", "tf32")
+
+
+def round_to_tf32(x: jax.Array) -> jax.Array:
+    """``x`` (float32) rounded to TensorFloat32's 10 mantissa bits, to nearest, ties to even."""
+    bits = jax.lax.bitcast_convert_type(jnp.asarray(x, jnp.float32), jnp.uint32)
+    bits = bits + jnp.uint32(0x0FFF) + ((bits >> 13) & jnp.uint32(1))
+    return jax.lax.bitcast_convert_type(bits & jnp.uint32(0xFFFFE000), jnp.float32)
+
+
+@contextlib.contextmanager
+def tf32_model_products():
+    """Within it, the matrix products of CCR's model (``jnp.einsum`` in
+    :mod:`ccrjax.transforms.ccr.dynamics` and :mod:`~ccrjax.transforms.ccr.transform`, the
+    only ones it has) take their operands rounded to TensorFloat32, as a GPU's tensor cores
+    do under JAX's default precision. Programs must be traced inside it."""
+    modules = (dynamics, transform)
+    originals = [module.jnp for module in modules]
+    emulated = SimpleNamespace(**vars(jnp))
+    emulated.einsum = lambda spec, *operands, **kwargs: jnp.einsum(
+        spec, *[round_to_tf32(operand) for operand in operands], **kwargs)
+    for module in modules:
+        module.jnp = emulated
+    try:
+        yield
+    finally:
+        for module, original in zip(modules, originals, strict=True):
+            module.jnp = original
 
 
 def trained_policy(scenario: str, algo: str, steps: int, seed: int):
@@ -140,9 +178,11 @@ def _g(value: float | None) -> str:
 
 
 def markdown(result: dict[str, Any]) -> str:
+    products = ("CCR's model's matrix products take TensorFloat32 operands, as a GPU computes "
+                "them by default (emulated). " if result.get("matmul") == "tf32" else "")
     lines = [
-        f"Policy `{result['policy']}`, {result['episodes']} episodes per scenario after "
-        f"{result['warmup']} episodes of random actions fitting CCR's model; smoothed "
+        f"{products}Policy `{result['policy']}`, {result['episodes']} episodes per scenario "
+        f"after {result['warmup']} episodes of random actions fitting CCR's model; smoothed "
         "emergency score E by the robot's state (median [quartiles], share of robot-steps), "
         "and the share of the intrinsic reward's magnitude within m steps of a robot of the "
         "same environment being in danger.",
@@ -185,6 +225,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--train-steps", type=int, default=150_000,
                         help="environment steps of that training (default 150,000)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--matmul", choices=MATMULS, default="float32",
+                        help="precision of CCR's model's matrix products: float32, or "
+                             "tf32 as a GPU computes them by default (emulated; default "
+                             "float32)")
     parser.add_argument("--out", type=Path, default=Path("runs/ccr_signal"),
                         help="output folder (default runs/ccr_signal)")
     return parser
@@ -197,11 +241,13 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be an integer >= 1, got {getattr(args, name)}")
     start = time.time()
-    rows = [measure(s, args.controller, args.episodes, args.warmup, args.seed, args.trained,
-                    args.train_steps) for s in SCENARIOS]
+    products = tf32_model_products() if args.matmul == "tf32" else contextlib.nullcontext()
+    with products:
+        rows = [measure(s, args.controller, args.episodes, args.warmup, args.seed, args.trained,
+                        args.train_steps) for s in SCENARIOS]
     result = {
         "policy": rows[0]["policy"], "episodes": args.episodes, "warmup": args.warmup,
-        "seed": args.seed, "rows": rows, "commit": git_commit(),
+        "seed": args.seed, "matmul": args.matmul, "rows": rows, "commit": git_commit(),
         "command": " ".join(["python experiments/ccr_signal.py", *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }

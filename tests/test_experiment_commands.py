@@ -338,3 +338,29 @@ def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_c
     assert search.exact_plain_cells(settings, tmp_path / "ccr", cells) is None
     pessimistic_search = dataclasses.replace(settings, variant="pessimistic")
     assert search.exact_plain_cells(pessimistic_search, tmp_path / "ccr", cells) is None
+
+
+def test_tf32_emulation_rounds_the_models_products_and_only_inside(tmp_path):
+    """``ccr_signal.py --matmul tf32``: operands keep 10 mantissa bits, rounded to nearest
+    with ties to even, and only CCR's model's products see them, only within the context."""
+    import jax.numpy as jnp
+
+    from ccrjax.transforms.ccr import dynamics, transform
+
+    signal = load("ccr_signal")
+    ulp = 2.0**-10  # TensorFloat32's spacing just above 1
+    values = jnp.array([1.0 + ulp, 1.0 + ulp / 4, 1.0 + ulp / 2, 1.0 + 1.5 * ulp,
+                        -(1.0 + 0.75 * ulp), 3.0e-20])
+    rounded = np.asarray(signal.round_to_tf32(values))
+    expected = [1.0 + ulp, 1.0, 1.0, 1.0 + 2 * ulp, -(1.0 + ulp)]
+    np.testing.assert_array_equal(rounded[:5], np.float32(expected))
+    assert abs(rounded[5] / 3.0e-20 - 1.0) <= 2.0**-11  # relative, at any magnitude
+
+    a, b = jnp.full((1, 3), 1.0 + ulp / 4), jnp.ones((3, 1))
+    exact = float(jnp.einsum("ij,jk->ik", a, b)[0, 0])
+    with signal.tf32_model_products():
+        assert float(dynamics.jnp.einsum("ij,jk->ik", a, b)[0, 0]) == 3.0
+        assert float(transform.jnp.einsum("ij,jk->ik", a, b)[0, 0]) == 3.0
+        assert float(jnp.einsum("ij,jk->ik", a, b)[0, 0]) == exact  # elsewhere untouched
+    assert dynamics.jnp is jnp and transform.jnp is jnp
+    assert exact != 3.0
