@@ -48,6 +48,7 @@ from ledger import (
     plan_pairs,
     read_json,
     settings_record,
+    training_record,
 )
 
 from ccrjax import cli
@@ -123,12 +124,14 @@ def plateau_flag(returns: np.ndarray) -> bool | None:
 def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
                ) -> dict[str, Any]:
     """One scenario and learner's plain runs: the curves (checked by :func:`checked`)."""
-    training = GridTraining(settings.config(scenario, algo), settings.seeds)
+    config = settings.config(scenario, algo)
+    training = GridTraining(config, settings.seeds)
     training.compile(not settings.quick)
     runs = partial.train(training, f"{scenario}-{algo}")
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
-        "budget": settings.budget(algo), "seeds": list(settings.seeds),
+        "budget": settings.budget(algo), "training": training_record(config),
+        "seeds": list(settings.seeds),
         "env_steps": np.asarray(runs.history["env_steps"][0]).tolist(),
         "curves": {m: runs.history[m].tolist() for m in
                    ("return", "success_rate", "danger_frequency", "target_distance")},

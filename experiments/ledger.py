@@ -19,6 +19,7 @@ import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import jax
@@ -27,7 +28,8 @@ import protocol
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.grid_checkpoint import discard, train_resumably
-from ccrjax.training import ALGOS
+from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training.config import make_env
 from ccrjax.training.grid import GridRuns, GridTraining
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -88,6 +90,45 @@ def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
     return kept
 
 
+# Transform parameters that a grid varies or the settings name (the searched values, the
+# tables' selected ones), left out of a cell's training record.
+SEARCHED_FIELDS = ("lam", "penalty")
+
+
+def training_record(config: TrainConfig) -> dict[str, Any]:
+    """What a cell's runs were trained with beyond the settings and the cell's scenario,
+    learner and variant, every value resolved (defaults included): the learner's
+    hyperparameters (MAAC's action set among them), the team, episode and batch sizes,
+    when learning starts, the environment's scenario, layout and physics parameters, and
+    the transform's (less :data:`SEARCHED_FIELDS`). Each new cell stores it, so that a cell
+    made before one of these changed is trained again, never mixed with newer ones."""
+    env = make_env(config, 1)
+    transform = dataclasses.asdict(config.transform_config)
+    transform = transform.get("config", transform)  # CCR's parameters live in its config
+    record = {
+        "learner": dataclasses.asdict(config.learner_config),
+        "num_robots": config.num_robots, "episode_length": config.episode_length,
+        "num_envs": config.num_envs, "learning_starts": config.learning_starts,
+        "transform": {k: v for k, v in transform.items() if k not in SEARCHED_FIELDS},
+        "scenario": dataclasses.asdict(env.scenario), "layout": dataclasses.asdict(env.layout),
+        "physics": dataclasses.asdict(env.physics), "sensitivity": env.sensitivity,
+        "robot_radius": env.robot_radius,
+    }
+    return json.loads(json.dumps(record))
+
+
+def expected_training(cell: dict[str, Any], record: dict[str, Any]) -> dict[str, Any]:
+    """The training record of ``cell``'s scenario, learner and variant under settings
+    ``record`` at the current code (the protocol's run configuration, the variant's
+    default transform)."""
+    variant = cell.get("variant") or record.get("variant") or "plain"
+    settings = SimpleNamespace(steps=record.get("steps"), quick=record.get("quick", False),
+                               eval_every=record["eval_every"],
+                               eval_episodes=record["eval_episodes"])
+    return training_record(protocol.run_config(settings, cell["scenario"], cell["algo"],
+                                               variant))
+
+
 def cell_budget(cell: dict[str, Any]) -> int | None:
     """The budget a stored cell trained for: its ``budget``, or for cells written before
     that was recorded, the environment steps of its last evaluation."""
@@ -100,11 +141,15 @@ def cell_budget(cell: dict[str, Any]) -> int | None:
 
 
 def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:
-    """Whether the stored ``cell`` is what settings ``record`` would make."""
+    """Whether the stored ``cell`` is what settings ``record`` would make: the same
+    :func:`cell_identity`, and, for cells that store one (cells made before it was stored
+    do not), the same :func:`training_record` as the current code gives."""
     if not cell or not isinstance(cell.get("settings"), dict) or cell.get("algo") not in ALGOS:
         return False
     algo = cell["algo"]
-    return cell_identity(cell["settings"], algo, cell_budget(cell)) == cell_identity(record, algo)
+    if cell_identity(cell["settings"], algo, cell_budget(cell)) != cell_identity(record, algo):
+        return False
+    return "training" not in cell or cell["training"] == expected_training(cell, record)
 
 
 def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:

@@ -45,6 +45,7 @@ from ledger import (
     plan_pairs,
     read_json,
     settings_record,
+    training_record,
 )
 
 from ccrjax import cli
@@ -104,7 +105,7 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
         levelled = {"plateaued": None, "why": str(error)}
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
-        "budget": settings.budget(algo),
+        "budget": settings.budget(algo), "training": training_record(config),
         "parameter": name, "grid_seeds": grid_seeds, "grid_values": grid_values,
         "rows": search_rows(runs, values, grid_values, seeds),
         "env_steps": runs.history["env_steps"][0].tolist(), "history": history,

@@ -80,6 +80,7 @@ from ledger import (
     open_experiment,
     read_json,
     settings_record,
+    training_record,
 )
 from PIL import Image, ImageDraw, ImageFont
 from reference_controllers import evaluate_controller
@@ -210,6 +211,7 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
         cell = {
             "scenario": job.scenario, "algo": job.algo, "variant": variant,
             "settings": settings_record(settings), "budget": settings.budget(job.algo),
+            "training": training_record(settings.config(job.scenario, job.algo, variant)),
             "seeds": part.seeds,
             "params": {k: [float(x) for x in v] for k, v in part.params.items()},
             "final": {m: [float(x) for x in final[m]] for m in METRICS},

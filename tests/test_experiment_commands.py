@@ -364,3 +364,45 @@ def test_tf32_emulation_rounds_the_models_products_and_only_inside(tmp_path):
         assert float(jnp.einsum("ij,jk->ik", a, b)[0, 0]) == exact  # elsewhere untouched
     assert dynamics.jnp is jnp and transform.jnp is jnp
     assert exact != 3.0
+
+
+def test_a_cell_made_with_other_training_parameters_is_not_current(search, budgets, tables):
+    """Each cell stores what its runs were trained with beyond the settings (learner,
+    environment, transform); read back, it must equal what the current code would use for
+    the same settings, in every experiment and variant, or the cell is trained again. A
+    MAAC cell made with the MPE's five actions is not current for box9; a cell made before
+    the record was stored is judged by its settings alone."""
+    import ledger
+
+    for quick in (False, True):
+        made = [(search.Settings(variant=variant, values=(1.0,), quick=quick),
+                 lambda s, sc, a: s.config(sc, a)) for variant in ("ccr", "pessimistic")]
+        made.append((budgets.Settings(quick=quick), lambda s, sc, a: s.config(sc, a)))
+        made += [(tables.Settings(lam=3.0, penalty=0.3, quick=quick),
+                  lambda s, sc, a, v=v: s.config(sc, a, v))
+                 for v in ("plain", "pessimistic", "ccr")]
+        for settings, config_of in made:
+            record = ledger.settings_record(settings)
+            for scenario, algo in (("hidden_obstacle", "maac"), ("turbulence", "iddpg")):
+                config = config_of(settings, scenario, algo)
+                cell = {"scenario": scenario, "algo": algo, "settings": record,
+                        "budget": settings.budget(algo),
+                        "training": ledger.training_record(config)}
+                if isinstance(settings, tables.Settings):
+                    cell["variant"] = config.variant
+                assert ledger.cell_is_current(cell, record), (settings, scenario, algo)
+
+    settings = search.Settings(variant="ccr", values=(1.0,))
+    record = ledger.settings_record(settings)
+    config = settings.config("hidden_obstacle", "maac")
+    training = ledger.training_record(config)
+    assert training["learner"]["action_set"] == "box9"
+    assert "lam" not in training["transform"] and training["transform"]["window"] == 4
+    cell = {"scenario": "hidden_obstacle", "algo": "maac", "settings": record,
+            "budget": settings.budget("maac"), "training": training}
+    mpe5 = {**training, "learner": {**training["learner"], "action_set": "mpe5"}}
+    assert not ledger.cell_is_current({**cell, "training": mpe5}, record)
+    harder = {**training, "scenario": {**training["scenario"], "thickness": 0.5}}
+    assert not ledger.cell_is_current({**cell, "training": harder}, record)
+    legacy = {k: v for k, v in cell.items() if k != "training"}
+    assert ledger.cell_is_current(legacy, record)
