@@ -73,7 +73,24 @@ def build_parser() -> argparse.ArgumentParser:
                         help="episodes per evaluation (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=Path("runs/sweep"),
                         help="output folder (default: %(default)s)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the sweep that --out already holds")
     return parser
+
+
+def check_out(out: Path, force: bool) -> None:
+    """Refuses, before anything compiles, an ``--out`` that is a file or that already holds
+    a sweep (unless ``force``), then creates the folder, so that no training ends in a
+    folder its results cannot be written to."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file, not a folder")
+    if (out / "sweep.json").exists() and not force:
+        raise UsageError(f"--out {out} already holds a sweep (sweep.json): name another "
+                         "folder, or give --force to replace it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"--out {out} cannot be created ({error.strerror})") from None
 
 
 def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
@@ -81,6 +98,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
                          total_env_steps=args.steps, eval_episodes=args.eval_episodes,
                          learning_starts=args.learning_starts)
     config = dataclasses.replace(config, eval_every=config.budget // 10 or 1)
+    check_out(args.out, args.force)
     values = [0.0, *DEFAULT_VALUES[args.variant]] if args.values is None else args.values
     values = sorted({float(v) for v in values})
     seeds = [args.seed_offset + k for k in range(args.seeds)]
@@ -99,7 +117,6 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         "command": " ".join([PROG, *sys.argv[1:]]), "commit": commit,
         "rows": search_rows(runs, values, grid_values, seeds),
     }
-    args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "sweep.json", json.dumps(result, indent=2) + "\n")
     write_atomic(args.out / "sweep.md", sweep_table(result))
     draw_tradeoff(result, args.out / "tradeoff.png")

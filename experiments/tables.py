@@ -783,15 +783,19 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"seeds per cell, at least 2 (default: {len(protocol.TABLE_SEEDS)})")
     parser.add_argument("--seed-offset", type=cli.seed_int, default=None,
                         help="first seed (default: 0); must stay clear of the selection "
-                        "seeds 100-102")
+                        "seeds 100-102 and the budgets' 200-202")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help=f"environment steps per run (default: {protocol.BUDGETS})")
     parser.add_argument("--lam", type=cli.non_negative_float, default=None,
                         help="CCR's lambda (default: the lambda search's choice, "
-                        f"{SEARCHES / 'ccr' / 'search.json'})")
+                        "<searches>/ccr/search.json)")
     parser.add_argument("--penalty", type=cli.non_negative_float, default=None,
                         help="the pessimistic penalty (default: the penalty search's choice, "
-                        f"{SEARCHES / 'pessimistic' / 'search.json'})")
+                        "<searches>/pessimistic/search.json)")
+    parser.add_argument("--searches", type=Path, default=SEARCHES,
+                        help="the folder holding both searches' results, ccr/ and "
+                        "pessimistic/ (default: the committed ones, %(default)s; "
+                        "runs/search after `make sweep` and `make penalty-sweep`)")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
                         "tables are written once all 18 programs exist)")
@@ -808,18 +812,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def selected(variant: str, given: float | None, quick: bool) -> tuple[float, str]:
-    """The value of ``variant``'s parameter and where it came from."""
+def selected(variant: str, given: float | None, quick: bool, searches: Path = SEARCHES
+             ) -> tuple[float, str]:
+    """The value of ``variant``'s parameter and where it came from (the search's result in
+    ``searches/<variant>/``, unless given or quick)."""
     if given is not None:
         return given, "given on the command line"
     if quick:
         return {"ccr": 30.0, "pessimistic": 1.0}[variant], "the quick mode's fixed value"
-    path = SEARCHES / variant / "search.json"
+    path = searches / variant / "search.json"
     search = read_json(path)
     if not search or "selection" not in search:
         option = "--lam" if variant == "ccr" else "--penalty"
         raise cli.UsageError(f"no {variant} search result at {path}: run experiments/search.py "
-                             f"--variant {variant} first, or give {option}")
+                             f"--variant {variant} first, name its folder's parent with "
+                             f"--searches, or give {option}")
     chosen = search["selection"]
     if not chosen.get("protocol"):
         option = "--lam" if variant == "ccr" else "--penalty"
@@ -827,7 +834,8 @@ def selected(variant: str, given: float | None, quick: bool) -> tuple[float, str
         raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
                              f"({why}): finish it on all 9 pairs at the protocol's settings, "
                              f"or give {option}")
-    return float(chosen["value"]), f"selected by the search in {path.parent.name}"
+    where = path.parent.name if searches == SEARCHES else str(path.parent)
+    return float(chosen["value"]), f"selected by the search in {where}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -839,8 +847,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.quick and args.out is None:
             raise cli.UsageError("--quick needs --out: quick numbers must not mix with a "
                                  "real grid's")
-        lam, sources["lam"] = selected("ccr", args.lam, args.quick)
-        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick)
+        lam, sources["lam"] = selected("ccr", args.lam, args.quick, args.searches)
+        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick,
+                                               args.searches)
         fields: dict[str, Any] = dict(QUICK, quick=True) if args.quick else {}
         if args.steps is not None:
             fields["steps"] = args.steps
@@ -848,7 +857,8 @@ def main(argv: list[str] | None = None) -> int:
             "seeds", protocol.TABLE_SEEDS)[0]
         count = args.seeds or len(fields.get("seeds", protocol.TABLE_SEEDS))
         fields["seeds"] = tuple(range(offset, offset + count))
-        problem = protocol.seed_overlap(fields["seeds"], offset, ("the selection",))
+        problem = protocol.seed_overlap(fields["seeds"], offset,
+                                        ("the selection", "the budgets'"))
         if problem:
             raise cli.UsageError(problem)
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))

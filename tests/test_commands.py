@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax import evaluate, train
+from ccrjax import evaluate, sweep, train
 from ccrjax.run.checkpoint import Checkpoints
 from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, read_metrics
 from ccrjax.run.stats import mean_ci
@@ -200,3 +200,28 @@ def test_demo_command_at_a_tiny_size(tmp_path, subprocess_env):
             assert np.unique(np.asarray(png.convert("L"))).size > 10  # a picture, not a blank
         with Image.open(out / f"{scenario}.gif") as gif:
             assert gif.format == "GIF" and gif.n_frames >= 5
+
+
+def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_path, capsys):
+    """A file as --out, or a folder that already holds a sweep (without --force), gets one
+    line and status 2 before anything compiles; the default values are the protocol's."""
+    import protocol
+
+    def refused(out: Path, *fragments: str) -> None:
+        with pytest.raises(SystemExit) as exit_:
+            sweep.main(["--steps", "800", "--learning-starts", "400", "--out", str(out)])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+        for fragment in fragments:
+            assert fragment in err, err
+
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    refused(afile, "--out", "is a file")
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "sweep.json").write_text("{}")
+    refused(earlier, "already holds a sweep", "--force")
+    assert (earlier / "sweep.json").read_text() == "{}"
+    assert sweep.DEFAULT_VALUES == {v: values for v, (_, values) in protocol.SEARCHED.items()}

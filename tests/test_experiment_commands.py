@@ -123,10 +123,13 @@ def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
     refused(tables, ["--quick", "--seeds", "1", "--out", out], capsys, "--seeds")
     refused(tables, ["--lam", "30", "--penalty", "1", "--seed-offset", "95", "--out", out],
             capsys, "selection seeds")
+    refused(tables, ["--lam", "30", "--penalty", "1", "--seed-offset", "195", "--out", out],
+            capsys, "budgets' seeds")
     refused(tables, ["--lam", "30", "--penalty", "1", "--steps", "1000", "--out", out],
             capsys, "ends before learning starts")
     monkeypatch.setattr(tables, "SEARCHES", tmp_path / "no-searches")
-    refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam")
+    refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam",
+            "--searches")
 
 
 def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[str, str],
@@ -275,6 +278,13 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     monkeypatch.setattr(tables, "SEARCHES", searches)
     refused(tables, ["--out", str(tmp_path / "never")], capsys, "not the protocol's choice",
             "3 of 9 pairs missing", "--lam")
+    # A researcher's own searches (make sweep, make penalty-sweep) feed the tables through
+    # --searches; the committed ones are the default.
+    monkeypatch.undo()
+    refused(tables, ["--searches", str(searches), "--out", str(tmp_path / "never")], capsys,
+            "not the protocol's choice", str(searches / "ccr"))
+    assert tables.selected("pessimistic", None, False, searches) == (
+        3.0, f"selected by the search in {searches / 'pessimistic'}")
 
 
 def test_merge_keeps_two_invocations_started_in_the_same_minute(merge, tmp_path):
