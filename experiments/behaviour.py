@@ -141,6 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     problem = protocol.seed_overlap(seeds, args.seed_offset, protocol.SEED_SETS)
     if problem:
         cli.fail(parser.prog, problem)
+    try:  # the budget checked before anything compiles
+        TrainConfig(algo="maddpg", scenario="hidden_obstacle", total_env_steps=args.steps)
+    except ValueError as error:
+        cli.fail(parser.prog, str(error))
+    if args.figure is not None and (args.figure.is_dir()
+                                    or not args.figure.parent.is_dir()):
+        cli.fail(parser.prog, f"--figure {args.figure} must name a file in an existing folder")
 
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)

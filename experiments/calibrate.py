@@ -43,14 +43,17 @@ from typing import Any
 
 import jax
 
+from ccrjax import cli
 from ccrjax.envs.env import CCREnv
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ledger import check_out  # noqa: E402
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
 
+PROG = "python experiments/calibrate.py"
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 METRICS = ("success_rate", "danger_frequency", "target_distance", "hazard_distance", "return")
 # (go-to-goal danger low, high, go-to-goal success low, high) per scenario.
@@ -192,29 +195,33 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python experiments/calibrate.py",
+    parser = cli.Parser(
+        prog=PROG,
         description="Reference controllers x scenarios: the table that justifies the "
                     "scenario defaults (about 3 minutes on a 2-core CPU).",
     )
-    parser.add_argument("--episodes", type=int, default=1024,
+    parser.add_argument("--episodes", type=cli.int_in(1, 65536), default=1024,
                         help="episodes (environments) per row (default 1024)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=cli.seed_int, default=0, help="random seed (default 0)")
     parser.add_argument("--no-sweeps", action="store_true",
                         help="skip the trade-off tables around the defaults")
     parser.add_argument("--no-action-sets", action="store_true",
                         help="skip the discrete action sets' table and bands")
     parser.add_argument("--out", type=Path, default=Path("runs/calibration"),
                         help="folder for calibration.md and calibration.json "
-                             "(default runs/calibration)")
+                             "(default runs/calibration; committed results under "
+                             "experiments/results/ are replaced only with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be an integer >= 1, got {args.episodes}")
+    problem = check_out(args.out, args.force)
+    if problem:
+        cli.fail(PROG, problem)
     start = time.time()
     rows = {s: {c: measure(s, c, args.episodes, args.seed) for c in CONTROLLERS}
             for s in SCENARIOS}
@@ -233,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
         "episodes": args.episodes, "seed": args.seed, "rows": rows, "sweeps": sweeps,
         "action_sets": action_sets, "checks": band_checks(rows, action_sets),
         "commit": git_commit(),
-        "command": " ".join(["python experiments/calibrate.py", *(argv or sys.argv[1:])]),
+        "command": " ".join([PROG, *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }
     text = markdown(result)

@@ -47,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ccrjax import cli
 from ccrjax.envs.env import CCREnv
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.training import TrainConfig, make_train
@@ -55,11 +56,14 @@ from ccrjax.transforms.ccr import dynamics, transform
 from ccrjax.transforms.ccr.transform import CCR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ledger import check_out  # noqa: E402
 from reference_controllers import CONTROLLERS  # noqa: E402
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 CONTACT_SLACK = 0.01
 TARGET_SHARE = 0.70
+PROG = "python experiments/ccr_signal.py"
+TRAIN_STEPS = 150_000  # --trained's default training budget
 MATMULS = ("float32", "tf32")
 
 
@@ -208,47 +212,59 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python experiments/ccr_signal.py",
+    parser = cli.Parser(
+        prog=PROG,
         description="Where CCR's emergency score and intrinsic reward arise, under a "
                     "reference controller.",
     )
     parser.add_argument("--controller", default="go_to_goal", choices=sorted(CONTROLLERS),
                         help="reference controller (default go_to_goal)")
-    parser.add_argument("--episodes", type=int, default=512,
+    parser.add_argument("--episodes", type=cli.int_in(1, 65536), default=512,
                         help="episodes measured per scenario (default 512)")
-    parser.add_argument("--warmup", type=int, default=20,
+    parser.add_argument("--warmup", type=cli.int_in(1, 100_000), default=20,
                         help="episodes that fit CCR's model first (default 20)")
     parser.add_argument("--trained", choices=("iddpg", "maddpg"), default=None,
                         help="measure under this plain learner, trained first in each "
                              "scenario, instead of --controller")
-    parser.add_argument("--train-steps", type=int, default=150_000,
-                        help="environment steps of that training (default 150,000)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--train-steps", type=cli.positive_int, default=None,
+                        help="environment steps of that training, with --trained "
+                             f"(default {TRAIN_STEPS:,})")
+    parser.add_argument("--seed", type=cli.seed_int, default=0, help="random seed (default 0)")
     parser.add_argument("--matmul", choices=MATMULS, default="float32",
                         help="precision of CCR's model's matrix products: float32, or "
                              "tf32 as a GPU computes them by default (emulated; default "
                              "float32)")
     parser.add_argument("--out", type=Path, default=Path("runs/ccr_signal"),
-                        help="output folder (default runs/ccr_signal)")
+                        help="output folder (default runs/ccr_signal; committed results "
+                             "under experiments/results/ are replaced only with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    for name in ("episodes", "warmup"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name} must be an integer >= 1, got {getattr(args, name)}")
+    if args.train_steps is not None and args.trained is None:
+        cli.fail(PROG, "--train-steps applies only with --trained")
+    train_steps = TRAIN_STEPS if args.train_steps is None else args.train_steps
+    problem = check_out(args.out, args.force)
+    if problem:
+        cli.fail(PROG, problem)
+    if args.trained is not None:
+        try:  # the budget checked before anything compiles
+            TrainConfig(algo=args.trained, scenario="nominal", total_env_steps=train_steps)
+        except ValueError as error:
+            cli.fail(PROG, str(error))
     start = time.time()
     products = tf32_model_products() if args.matmul == "tf32" else contextlib.nullcontext()
     with products:
         rows = [measure(s, args.controller, args.episodes, args.warmup, args.seed, args.trained,
-                        args.train_steps) for s in SCENARIOS]
+                        train_steps) for s in SCENARIOS]
     result = {
         "policy": rows[0]["policy"], "episodes": args.episodes, "warmup": args.warmup,
         "seed": args.seed, "matmul": args.matmul, "rows": rows, "commit": git_commit(),
-        "command": " ".join(["python experiments/ccr_signal.py", *(argv or sys.argv[1:])]),
+        "command": " ".join([PROG, *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }
     text = markdown(result)

@@ -12,7 +12,6 @@ environment steps.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -20,15 +19,22 @@ import time
 
 import jax
 
+from ccrjax import cli
 from ccrjax.training import ALGOS, TrainConfig, make_train
 
 
-def run(algo: str, seed: int, steps: int | None, eval_episodes: int) -> dict:
+def sanity_config(algo: str, steps: int | None, eval_episodes: int) -> TrainConfig:
+    """The default configuration of ``algo`` on ``nominal``, ``steps`` if given, evaluated
+    once at the end (raises ``ValueError`` on a budget that ends before learning)."""
     config = TrainConfig(algo=algo, scenario="nominal", eval_episodes=eval_episodes)
     if steps is not None:
         config = dataclasses.replace(config, total_env_steps=steps)
     # One evaluation at the end is all this check needs.
-    config = dataclasses.replace(config, eval_every=config.budget)
+    return dataclasses.replace(config, eval_every=config.budget)
+
+
+def run(algo: str, seed: int, steps: int | None, eval_episodes: int) -> dict:
+    config = sanity_config(algo, steps, eval_episodes)
     program = make_train(config)
     start = time.perf_counter()
     state, history = jax.jit(program.train)(jax.random.PRNGKey(seed))
@@ -49,13 +55,24 @@ def run(algo: str, seed: int, steps: int | None, eval_episodes: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--steps", type=int, default=None, help="override the default budget")
-    parser.add_argument("--eval-episodes", type=int, default=128)
+    parser = cli.Parser(prog="python experiments/sanity.py",
+                        description=__doc__.split("\n")[0])
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
+                        help="learners to train, one seed each (default: all three)")
+    parser.add_argument("--seed", type=cli.seed_int, default=0,
+                        help="random seed (default: %(default)s)")
+    parser.add_argument("--steps", type=cli.positive_int, default=None,
+                        help="environment steps per run (default: each learner's default "
+                        "budget)")
+    parser.add_argument("--eval-episodes", type=cli.int_in(1, 65536), default=128,
+                        help="episodes of the final evaluation (default: %(default)s)")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     args = parser.parse_args(argv)
+    for algo in args.algos:  # every configuration checked before anything compiles
+        try:
+            sanity_config(algo, args.steps, args.eval_episodes)
+        except ValueError as error:
+            cli.fail(parser.prog, str(error))
 
     rows = [run(algo, args.seed, args.steps, args.eval_episodes) for algo in args.algos]
     if args.json:

@@ -323,10 +323,43 @@ def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
     (["--seeds", "1"], ("--seeds",)),
     (["--reach", "-1"], ("--reach",)),
     (["--lam", "-2"], ("--lam",)),
+    (["--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
+    (["--figure", "/no/such/folder/f.png"], ("--figure",)),
 ])
 def test_the_behaviour_exploration_refuses_bad_input_and_the_protocols_seeds(argv, fragments,
                                                                               capsys):
     refused(load("behaviour"), argv, capsys, *fragments)
+
+
+@pytest.mark.parametrize("script, argv, fragments", [
+    ("ccr_signal", ["--episodes", "0"], ("--episodes",)),
+    ("ccr_signal", ["--train-steps", "200000"], ("--train-steps applies only with --trained",)),
+    ("ccr_signal", ["--trained", "maddpg", "--train-steps", "20000"],
+     ("(--steps) 20,000 ends before learning",)),
+    ("ccr_signal", ["--matmul", "bf16"], ("--matmul",)),
+    ("sanity", ["--steps", "1000"], ("(--steps) 1,000 ends before learning",)),
+    ("sanity", ["--eval-episodes", "0"], ("--eval-episodes",)),
+    ("sanity", ["--algos", "ppo"], ("--algos",)),
+    ("calibrate", ["--episodes", "0"], ("--episodes",)),
+    ("calibrate", ["--seed", "x"], ("--seed",)),
+])
+def test_the_measurement_scripts_refuse_bad_input_in_one_line(script, argv, fragments, capsys):
+    refused(load(script), argv, capsys, *fragments)
+
+
+def test_the_measurement_scripts_replace_committed_results_only_with_force(
+        tmp_path, capsys, monkeypatch):
+    import ledger
+
+    results = tmp_path / "results"
+    for name in ("ccr_signal", "calibration"):
+        (results / name).mkdir(parents=True)
+        (results / name / "kept.md").write_text("committed")
+    monkeypatch.setattr(ledger, "RESULTS", results)
+    refused(load("ccr_signal"), ["--out", str(results / "ccr_signal")], capsys,
+            "holds committed results", "--force")
+    refused(load("calibrate"), ["--out", str(results / "calibration")], capsys,
+            "holds committed results", "--force")
 
 
 def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_cells(
