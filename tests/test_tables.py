@@ -98,25 +98,6 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
     assert len(cells) == 27 and not [c for c in cells if c.name.startswith(".")]
 
 
-def test_the_paper_headlines_follow_from_its_tables(tables):
-    """Our headline formula, applied to the paper's own tables, gives the paper's figures."""
-    cells = {}
-    for (scenario, algo, variant), danger in tables.PAPER["danger_frequency"].items():
-        success = tables.PAPER["success_rate"][(scenario, algo, variant)]
-        cells[(scenario, algo, variant)] = {"final": {"danger_frequency": [danger],
-                                                      "success_rate": [success]}}
-    for key, metric, new, base, sign in (
-        ("danger_reduction_vs_plain", "danger_frequency", "ccr", "plain", -1),
-        ("danger_reduction_vs_pessimistic", "danger_frequency", "ccr", "pessimistic", -1),
-        ("success_change_vs_pessimistic", "success_rate", "ccr", "pessimistic", 1),
-    ):
-        result = tables.headline(cells, metric, new, base, sign, resamples=2000)
-        assert result["mean"] == pytest.approx(tables.PAPER_HEADLINES[key], abs=6e-4), key
-        # One value per cell: every resample is the data itself, so the interval is a point.
-        assert result["ci_low"] == pytest.approx(result["mean"], rel=1e-12)
-        assert result["ci_high"] == pytest.approx(result["mean"], rel=1e-12)
-
-
 def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run, capsys):
     out = quick_run
     missing = out / "cells" / "strong_wind-maac-ccr.json"

@@ -89,7 +89,7 @@ class MAACConfig:
     critic_weight_decay: float = 1e-3  # Adam weight decay of the critic
     attention_regulariser: float = 1e-3  # weight of the attention-logit penalty
     policy_regulariser: float = 1e-3  # weight of the policy-logit penalty
-    normalise_rewards: bool = True  # by the buffer's per-robot mean and std
+    normalise_rewards: bool = True  # rewards normalised by the buffer's per-robot mean, std
     # discrete actions: box9 ({-1, 0, 1}^2, the continuous box's reach) or mpe5 (the MPE's 5)
     action_set: str = DEFAULT_DISCRETE_ACTION_SET
 

@@ -14,12 +14,13 @@ all GPUs of a machine, or the devices of several machines:
 * results come back to every host whole (``process_allgather`` when several
   processes take part).
 
-Several machines: start the same command on each host after
-``jax.distributed.initialize()`` (``ccrjax.training.grid.initialize_distributed`` reads the
-usual ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES``, ``JAX_PROCESS_ID`` variables, or
-the cluster's own, e.g. SLURM's); every process builds the same grid inputs
-(they are deterministic functions of the command line), feeds its own devices'
-slices, and receives every result.
+Several processes (machines): a program that calls ``jax.distributed.initialize()`` before
+anything touches the devices and then trains the same grid in every process gets a mesh over
+all their devices; every process builds the same grid inputs (deterministic functions of the
+configuration), feeds its own devices' slices, and receives every result. That path is not
+tested here (one machine), and the experiments' scripts do not take it: they split a grid
+over machines by scenario and learner, each into its own folder, and merge the folders
+(``experiments/merge.py``).
 
 On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` makes two devices of
 one machine's cores; ``tests/test_grid.py`` checks that sharded results equal
@@ -30,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -47,19 +47,6 @@ from ccrjax.training.config import TrainConfig, make_env
 from ccrjax.training.program import NonFiniteTraining, first_nonfinite, make_train
 
 GRID_AXIS = "grid"
-
-
-def initialize_distributed() -> bool:
-    """``jax.distributed.initialize()`` when the environment describes several processes.
-
-    Returns whether it was called. Reads ``JAX_COORDINATOR_ADDRESS`` (and lets JAX find the
-    process count and index, from ``JAX_NUM_PROCESSES``/``JAX_PROCESS_ID`` or a cluster
-    manager such as SLURM). Call it before anything else touches JAX's devices.
-    """
-    if not os.environ.get("JAX_COORDINATOR_ADDRESS") and not os.environ.get("SLURM_JOB_ID"):
-        return False
-    jax.distributed.initialize()
-    return True
 
 
 def grid_mesh(devices: list | None = None) -> Mesh:

@@ -1,0 +1,116 @@
+"""The numbers ``experiments/tables.py`` computes from finished cells, on made-up cells (no
+training): the paper's headline formula, the claim scorecard, rliable's aggregates and the
+training-danger share. The whole grid's pipeline is ``tests/test_tables.py`` (slow)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
+
+
+@pytest.fixture(scope="module")
+def tables():
+    spec = importlib.util.spec_from_file_location("tables_numbers", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def made_up_cells(tables, danger, success) -> dict:
+    """Cells of every scenario x learner x variant; ``danger(scenario, algo, variant)`` and
+    ``success(...)`` give each cell's per-seed values."""
+    return {(s, a, v): {"final": {"danger_frequency": list(danger(s, a, v)),
+                                  "success_rate": list(success(s, a, v))}}
+            for s in tables.SCENARIOS for a in tables.ALGOS for v in tables.VARIANTS}
+
+
+def test_the_paper_headlines_follow_from_its_tables(tables):
+    """Our headline formula, applied to the paper's own tables, gives the paper's figures."""
+    cells = {}
+    for (scenario, algo, variant), danger in tables.PAPER["danger_frequency"].items():
+        success = tables.PAPER["success_rate"][(scenario, algo, variant)]
+        cells[(scenario, algo, variant)] = {"final": {"danger_frequency": [danger],
+                                                      "success_rate": [success]}}
+    for key, metric, new, base, sign in (
+        ("danger_reduction_vs_plain", "danger_frequency", "ccr", "plain", -1),
+        ("danger_reduction_vs_pessimistic", "danger_frequency", "ccr", "pessimistic", -1),
+        ("success_change_vs_pessimistic", "success_rate", "ccr", "pessimistic", 1),
+    ):
+        result = tables.headline(cells, metric, new, base, sign, resamples=2000)
+        assert result["mean"] == pytest.approx(tables.PAPER_HEADLINES[key], abs=6e-4), key
+        # One value per cell: every resample is the data itself, so the interval is a point.
+        assert result["ci_low"] == pytest.approx(result["mean"], rel=1e-12)
+        assert result["ci_high"] == pytest.approx(result["mean"], rel=1e-12)
+
+
+def test_the_scorecard_counts_lower_significant_and_holm_cells(tables):
+    """CCR below plain in 4 cells, clearly (p << 0.05/9) in 2 of them; never below the
+    pessimistic baseline; on the hidden obstacle above both in success with MADDPG only."""
+    clear = {("turbulence", "iddpg"), ("strong_wind", "maddpg")}
+    slight = {("turbulence", "maac"), ("hidden_obstacle", "iddpg")}
+
+    def danger(s, a, v):
+        if v == "pessimistic":
+            return [0.01, 0.02, 0.015]
+        if v == "plain":
+            return [0.30, 0.31, 0.32] if (s, a) in clear else [0.21, 0.19, 0.23]
+        if (s, a) in clear:
+            return [0.10, 0.11, 0.12]
+        return [0.10, 0.30, 0.20] if (s, a) in slight else [0.25, 0.26, 0.27]
+
+    def success(s, a, v):
+        if s == "hidden_obstacle" and a == "maddpg":
+            return [0.95, 0.96, 0.97] if v == "ccr" else [0.50, 0.52, 0.54]
+        return [0.8, 0.8, 0.8]
+
+    cells = made_up_cells(tables, danger, success)
+    card = tables.claims(cells, tables.welch_marks(cells))
+    plain = card["danger_lower_vs_plain"]
+    assert (plain["cells"], plain["significant"], plain["significant_holm"], plain["of"]) == (
+        4, 2, 2, 9)
+    assert {(d["scenario"], d["algo"]) for d in plain["detail"] if d["lower"]} == clear | slight
+    pessimistic = card["danger_lower_vs_pessimistic"]
+    assert (pessimistic["cells"], pessimistic["significant"]) == (0, 0)
+    raised = card["hidden_obstacle_success_above_both"]
+    assert (raised["learners"], raised["significant"], raised["of"]) == (1, 1, 3)
+    assert [r["algo"] for r in raised["detail"] if r["above_both"]] == ["maddpg"]
+
+
+def test_rliable_aggregates_on_made_up_cells(tables):
+    """Every CCR run below every plain run in danger: probability of improvement 1 (lower
+    is better for danger); equal to the pessimistic runs: 1/2; IQMs are the constant scores."""
+    levels = {"plain": 0.3, "pessimistic": 0.1, "ccr": 0.1}
+    cells = made_up_cells(tables, lambda s, a, v: [levels[v]] * 5, lambda s, a, v: [0.9] * 5)
+    result = tables.aggregates(cells, resamples=200)
+    danger = result["danger_frequency"]
+    for variant, level in levels.items():
+        assert danger["iqm"][variant]["iqm"] == pytest.approx(level)
+    improvement = danger["probability_of_improvement"]
+    assert improvement["plain"]["probability"] == pytest.approx(1.0)
+    assert improvement["pessimistic"]["probability"] == pytest.approx(0.5)
+    assert result["success_rate"]["probability_of_improvement"]["plain"]["probability"] == (
+        pytest.approx(0.5))
+
+
+def test_the_training_danger_share_is_ccrs_over_plains(tables):
+    """The paper's 28.09%: MADDPG+CCR's dangerous training steps over plain MADDPG's, on the
+    hidden obstacle; other cells do not enter it."""
+    cells = {}
+    for (s, a, v) in [(s, a, v) for s in tables.SCENARIOS for a in tables.ALGOS
+                      for v in tables.VARIANTS]:
+        steps = [1000.0, 1000.0] if v == "plain" else [250.0, 300.0]
+        if (s, a) != ("hidden_obstacle", "maddpg"):
+            steps = [7.0, 9.0]
+        cells[(s, a, v)] = {"final": {"learning_danger_steps": steps}}
+    share = tables.training_danger_share(cells)
+    assert share["mean"] == pytest.approx(0.275)
+    assert share["ci_low"] <= share["mean"] <= share["ci_high"]
+    assert 0.25 - 1e-9 <= share["ci_low"] and share["ci_high"] <= 0.30 + 1e-9
+    assert np.isfinite([share["ci_low"], share["ci_high"]]).all()
