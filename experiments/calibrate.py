@@ -222,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     problem = check_out(args.out, args.force)
     if problem:
         cli.fail(PROG, problem)
+    commit = git_commit()  # the code that measures is the code loaded now
     start = time.time()
     rows = {s: {c: measure(s, c, args.episodes, args.seed) for c in CONTROLLERS}
             for s in SCENARIOS}
@@ -239,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {
         "episodes": args.episodes, "seed": args.seed, "rows": rows, "sweeps": sweeps,
         "action_sets": action_sets, "checks": band_checks(rows, action_sets),
-        "commit": git_commit(),
+        "commit": commit,
         "command": " ".join([PROG, *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }

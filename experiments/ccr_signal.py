@@ -256,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
             TrainConfig(algo=args.trained, scenario="nominal", total_env_steps=train_steps)
         except ValueError as error:
             cli.fail(PROG, str(error))
+    commit = git_commit()  # the code that measures is the code loaded now
     start = time.time()
     products = tf32_model_products() if args.matmul == "tf32" else contextlib.nullcontext()
     with products:
@@ -263,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
                         train_steps) for s in SCENARIOS]
     result = {
         "policy": rows[0]["policy"], "episodes": args.episodes, "warmup": args.warmup,
-        "seed": args.seed, "matmul": args.matmul, "rows": rows, "commit": git_commit(),
+        "seed": args.seed, "matmul": args.matmul, "rows": rows, "commit": commit,
         "command": " ".join([PROG, *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }
