@@ -64,8 +64,10 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from ccrjax import cli
 from ccrjax.agents import replay
 from ccrjax.agents.types import Transition
+from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.training import ALGOS, TrainConfig, make_train
 
 
@@ -452,15 +454,24 @@ def measure(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--algo", choices=ALGOS, default="maddpg")
-    parser.add_argument("--scenario", default="hidden_obstacle")
-    parser.add_argument("--capacity", type=int, default=1_000_000)
-    parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--calls", type=int, default=20, help="operations per timed repeat")
-    parser.add_argument("--tmpdir", default=None, help="where the checkpoints are written")
-    parser.add_argument("--json", action="store_true")
+    parser = cli.Parser(prog="python benchmarks/replay_compare.py",
+                        description=__doc__.split("\n")[0])
+    parser.add_argument("--algo", choices=ALGOS, default="maddpg",
+                        help="learner whose transitions are stored (default: %(default)s)")
+    parser.add_argument("--scenario", choices=tuple(SCENARIOS), default="hidden_obstacle",
+                        help="scenario whose observations are stored (default: %(default)s)")
+    parser.add_argument("--capacity", type=cli.positive_int, default=1_000_000,
+                        help="transitions each buffer holds (default: %(default)s)")
+    parser.add_argument("--seeds", type=cli.positive_int, default=3,
+                        help="buffers side by side, one per seed (default: %(default)s)")
+    parser.add_argument("--repeats", type=cli.positive_int, default=5,
+                        help="timed repeats; the median is reported (default: %(default)s)")
+    parser.add_argument("--calls", type=cli.positive_int, default=20,
+                        help="operations per timed repeat (default: %(default)s)")
+    parser.add_argument("--tmpdir", default=None,
+                        help="where the checkpoints are written (default: a temporary folder)")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object per line instead of a table")
     args = parser.parse_args(argv)
 
     rows = measure(args)

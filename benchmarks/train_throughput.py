@@ -17,7 +17,6 @@ measured iteration includes its updates.
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import statistics
@@ -26,6 +25,8 @@ import time
 import jax
 import jax.numpy as jnp
 
+from ccrjax import cli
+from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
@@ -90,13 +91,20 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS))
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=["plain"])
-    parser.add_argument("--scenario", default="hidden_obstacle")
-    parser.add_argument("--iterations", type=int, default=20)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--json", action="store_true")
+    parser = cli.Parser(prog="python benchmarks/train_throughput.py",
+                        description=__doc__.split("\n")[0])
+    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
+                        help="learners to time (default: all three)")
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=["plain"],
+                        help="variants to time, in turns (default: plain)")
+    parser.add_argument("--scenario", choices=tuple(SCENARIOS), default="hidden_obstacle",
+                        help="scenario (default: %(default)s)")
+    parser.add_argument("--iterations", type=cli.positive_int, default=20,
+                        help="training iterations per timed call (default: %(default)s)")
+    parser.add_argument("--repeats", type=cli.positive_int, default=5,
+                        help="timed calls; the median is reported (default: %(default)s)")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object per line instead of a table")
     args = parser.parse_args(argv)
 
     rows = []
