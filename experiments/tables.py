@@ -17,16 +17,15 @@ is the pessimistic transform with penalty 0, exactly), and CCR; each trains all 
 runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one program trains,
 the next one compiles.
 
-Cost. Measured per seed on this project's 2-core CPU (``benchmarks/train_throughput.py``,
-hidden obstacle, median of 3, 2026-11-22; MADDPG's and MAAC's while the test suite shared
-the machine, so their times below are upper bounds): IDDPG about 6,700, MADDPG about 3,900
-and MAAC about 250 environment steps per second. The grid is 30 runs of 3,000,000 steps per
-scenario and learner, so on that CPU it would take about 11 h (IDDPG) + up to 19 h
-(MADDPG) + up to 300 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about
-460,000 environment steps per second over 3 vmapped seeds, MAAC at about 80,000). One whole
-program measured on that CPU: the lambda search's strong-wind IDDPG program, 21 CCR runs of
-3M steps, trained in 2h15m (2026-11-23), so a table pair's 30 IDDPG runs take about 3h15m
-there. Cells
+Cost. Measured per seed on this project's 2-core CPU, with nothing beside it
+(``benchmarks/train_throughput.py --repeats 3``, hidden obstacle, median of 3, 2026-11-24,
+commit ``8ee8675``): IDDPG about 12,500, MADDPG about 8,400 and MAAC about 420 environment steps
+per second. A program of many vmapped runs trains about as many steps per second in all as
+one seed does there (the lambda search's strong-wind IDDPG program, 21 CCR runs of 3M steps,
+trained in 2h15m on 2026-11-23: about 7,800 in all). The grid is 30 runs of 3,000,000 steps
+per scenario and learner, so on that CPU it would take about 6 h (IDDPG) + 9 h (MADDPG) +
+180 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about 460,000 environment
+steps per second over 3 vmapped seeds, MAAC at about 80,000). Cells
 are resumable across invocations, so the grid can be spread over several; the program in
 training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
