@@ -39,6 +39,7 @@ import protocol
 from ledger import (
     Partial,
     add_checkpoint_option,
+    add_out_options,
     cell_is_current,
     cell_path,
     device_name,
@@ -235,11 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true",
                         help="tiny networks, and by default a tiny budget and evaluation: the "
                         "pipeline in moments")
-    parser.add_argument("--out", type=Path, default=Path("runs/budgets"),
-                        help="results folder (default: %(default)s; committed results go to "
-                        "experiments/results/budgets)")
-    parser.add_argument("--force", action="store_true",
-                        help="allow --out to be a folder of committed results")
+    add_out_options(parser, "budgets", Path("runs/budgets"))
     add_checkpoint_option(parser)
     return parser
 

@@ -50,7 +50,7 @@ from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ledger import check_out  # noqa: E402
+from ledger import add_out_options, check_out  # noqa: E402
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
 
 PROG = "python experiments/calibrate.py"
@@ -207,12 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="skip the trade-off tables around the defaults")
     parser.add_argument("--no-action-sets", action="store_true",
                         help="skip the discrete action sets' table and bands")
-    parser.add_argument("--out", type=Path, default=Path("runs/calibration"),
-                        help="folder for calibration.md and calibration.json "
-                             "(default runs/calibration; committed results under "
-                             "experiments/results/ are replaced only with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="allow --out to be a folder of committed results")
+    add_out_options(parser, "calibration", Path("runs/calibration"))
     return parser
 
 

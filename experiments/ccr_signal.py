@@ -56,7 +56,7 @@ from ccrjax.transforms.ccr import dynamics, transform
 from ccrjax.transforms.ccr.transform import CCR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ledger import check_out  # noqa: E402
+from ledger import add_out_options, check_out  # noqa: E402
 from reference_controllers import CONTROLLERS  # noqa: E402
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
@@ -234,11 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="precision of CCR's model's matrix products: float32, or "
                              "tf32 as a GPU computes them by default (emulated; default "
                              "float32)")
-    parser.add_argument("--out", type=Path, default=Path("runs/ccr_signal"),
-                        help="output folder (default runs/ccr_signal; committed results "
-                             "under experiments/results/ are replaced only with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="allow --out to be a folder of committed results")
+    add_out_options(parser, "ccr_signal/<policy>", Path("runs/ccr_signal"))
     return parser
 
 

@@ -47,6 +47,19 @@ def add_checkpoint_option(parser: Any) -> None:
                         "where it was; 0: never (default: %(default)s)")
 
 
+def add_out_options(parser: Any, committed: str, default: Path | None = None,
+                    default_text: str | None = None) -> None:
+    """``--out`` and ``--force``, the same in every experiment: results go under ``runs/``
+    by default, and the committed ones (``experiments/results/<committed>``) are replaced
+    only with ``--force`` (:func:`check_out`)."""
+    shown = default_text or str(default)
+    parser.add_argument("--out", type=Path, default=default,
+                        help=f"results folder (default: {shown}; the committed results are "
+                        f"experiments/results/{committed}, replaced only with --force)")
+    parser.add_argument("--force", action="store_true",
+                        help="allow --out to be a folder of committed results")
+
+
 @dataclasses.dataclass(frozen=True)
 class Partial:
     """Where and how often an experiment checkpoints the program it is training."""

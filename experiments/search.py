@@ -36,6 +36,7 @@ import protocol
 from ledger import (
     Partial,
     add_checkpoint_option,
+    add_out_options,
     cell_is_current,
     cell_path,
     device_name,
@@ -270,11 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="learners (default: all three)")
     parser.add_argument("--quick", action="store_true",
                         help="a tiny budget and tiny networks: the pipeline in minutes")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="results folder (default: runs/search/<variant>; committed results "
-                        "go to experiments/results/search/<variant>)")
-    parser.add_argument("--force", action="store_true",
-                        help="allow --out to be a folder of committed results")
+    add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
     return parser
 

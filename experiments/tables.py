@@ -72,6 +72,7 @@ from ledger import (
     Partial,
     Progress,
     add_checkpoint_option,
+    add_out_options,
     cell_is_current,
     device_name,
     duration,
@@ -802,11 +803,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="train only these learners' programs (default: all three)")
     parser.add_argument("--quick", action="store_true",
                         help="a tiny budget and tiny networks: checks the pipeline in minutes")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="results folder (default: runs/tables; the committed results are "
-                        f"{RESULTS / 'tables'}, written with --force)")
-    parser.add_argument("--force", action="store_true",
-                        help="allow --out to be a folder of committed results")
+    add_out_options(parser, "tables", default_text="runs/tables")
     add_checkpoint_option(parser)
     return parser
 
