@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="CCR's lambda (default: 30, an exploration; the tables use the "
                         "searched one)")
     parser.add_argument("--figure", type=Path, default=None,
-                        help="also draw the per-rank distances to this PNG")
+                        help="also draw the per-rank distances to this .png file")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     seeds = list(range(args.seed_offset, args.seed_offset + args.seeds))
@@ -145,9 +145,10 @@ def main(argv: list[str] | None = None) -> int:
         TrainConfig(algo="maddpg", scenario="hidden_obstacle", total_env_steps=args.steps)
     except ValueError as error:
         cli.fail(parser.prog, str(error))
-    if args.figure is not None and (args.figure.is_dir()
-                                    or not args.figure.parent.is_dir()):
-        cli.fail(parser.prog, f"--figure {args.figure} must name a file in an existing folder")
+    if args.figure is not None and (args.figure.suffix.lower() != ".png"
+                                    or args.figure.is_dir() or not args.figure.parent.is_dir()):
+        cli.fail(parser.prog, f"--figure {args.figure} must name a .png file in an existing "
+                 "folder")
 
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)

@@ -50,7 +50,7 @@ from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ledger import add_out_options, check_out  # noqa: E402
+from ledger import add_out_options, prepare_out  # noqa: E402
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
 
 PROG = "python experiments/calibrate.py"
@@ -214,9 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    problem = check_out(args.out, args.force)
-    if problem:
-        cli.fail(PROG, problem)
+    prepare_out(PROG, args.out, args.force)
     commit = git_commit()  # the code that measures is the code loaded now
     start = time.time()
     rows = {s: {c: measure(s, c, args.episodes, args.seed) for c in CONTROLLERS}
@@ -240,7 +238,6 @@ def main(argv: list[str] | None = None) -> int:
         "seconds": time.time() - start,
     }
     text = markdown(result)
-    args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "calibration.json", json.dumps(result, indent=1))
     write_atomic(args.out / "calibration.md", text)
     print(text)

@@ -56,7 +56,7 @@ from ccrjax.transforms.ccr import dynamics, transform
 from ccrjax.transforms.ccr.transform import CCR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ledger import add_out_options, check_out  # noqa: E402
+from ledger import add_out_options, prepare_out  # noqa: E402
 from reference_controllers import CONTROLLERS  # noqa: E402
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
@@ -244,9 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.train_steps is not None and args.trained is None:
         cli.fail(PROG, "--train-steps applies only with --trained")
     train_steps = TRAIN_STEPS if args.train_steps is None else args.train_steps
-    problem = check_out(args.out, args.force)
-    if problem:
-        cli.fail(PROG, problem)
+    prepare_out(PROG, args.out, args.force)
     if args.trained is not None:
         try:  # the budget checked before anything compiles
             TrainConfig(algo=args.trained, scenario="nominal", total_env_steps=train_steps)
@@ -265,7 +263,6 @@ def main(argv: list[str] | None = None) -> int:
         "seconds": time.time() - start,
     }
     text = markdown(result)
-    args.out.mkdir(parents=True, exist_ok=True)
     write_atomic(args.out / "ccr_signal.json", json.dumps(result, indent=1))
     write_atomic(args.out / "ccr_signal.md", text)
     print(text)

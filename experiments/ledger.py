@@ -186,6 +186,19 @@ def check_out(out: Path, force: bool) -> str | None:
     return None
 
 
+def prepare_out(prog: str, out: Path, force: bool) -> None:
+    """For a measurement script: ``out`` checked (:func:`check_out`) and created before
+    anything is measured, or one line and status 2."""
+    problem = check_out(out, force)
+    if problem is None:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            problem = f"--out {out} cannot be created ({error.strerror})"
+    if problem:
+        cli.fail(prog, problem)
+
+
 def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
                     settings_of: Callable[[], Any]) -> tuple[Any, Ledger]:
     """The start every experiment shares: ``settings_of()`` builds and validates the

@@ -20,13 +20,14 @@ the next one compiles.
 Cost. Measured per seed on this project's 2-core CPU, with nothing beside it
 (``benchmarks/train_throughput.py --repeats 3``, hidden obstacle, median of 3, 2026-11-24,
 commit ``8ee8675``): IDDPG about 12,500, MADDPG about 8,400 and MAAC about 420 environment steps
-per second. A program of many vmapped runs trains about as many steps per second in all as
-one seed does there (the lambda search's strong-wind IDDPG program, 21 CCR runs of 3M steps,
-trained in 2h15m on 2026-11-23: about 7,800 in all). The grid is 30 runs of 3,000,000 steps
-per scenario and learner, so on that CPU it would take about 6 h (IDDPG) + 9 h (MADDPG) +
-180 h (MAAC): it is meant for a GPU (an H100 trains MADDPG at about 460,000 environment
-steps per second over 3 vmapped seeds, MAAC at about 80,000). Cells
-are resumable across invocations, so the grid can be spread over several; the program in
+per second. A program of many vmapped runs trains fewer steps per second in all than one
+seed alone (the lambda search's strong-wind IDDPG program, 21 CCR runs of 3M steps, trained
+in 2h15m on 2026-11-23: about 7,800 in all). The grid is 30 runs of 3,000,000 steps per
+scenario and learner, so on that CPU it would take about 10 h (IDDPG, at that program's rate)
++ at least 9 h (MADDPG) + at least 180 h (MAAC, both at one seed's rate): it is meant for a
+GPU (an H100 trains MADDPG at about 460,000 environment steps per second over 3 vmapped
+seeds, MAAC at about 80,000). Cells are resumable across invocations, so the grid can be
+spread over several; the program in
 training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
 

@@ -325,6 +325,7 @@ def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
     (["--lam", "-2"], ("--lam",)),
     (["--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
     (["--figure", "/no/such/folder/f.png"], ("--figure",)),
+    (["--figure", "figure.xyz"], ("--figure", ".png")),
 ])
 def test_the_behaviour_exploration_refuses_bad_input_and_the_protocols_seeds(argv, fragments,
                                                                               capsys):
@@ -360,6 +361,10 @@ def test_the_measurement_scripts_replace_committed_results_only_with_force(
             "holds committed results", "--force")
     refused(load("calibrate"), ["--out", str(results / "calibration")], capsys,
             "holds committed results", "--force")
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    refused(load("ccr_signal"), ["--out", str(afile / "sub")], capsys, "cannot be created")
+    refused(load("calibrate"), ["--out", str(afile)], capsys, "is a file")
 
 
 def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_cells(

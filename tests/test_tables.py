@@ -40,8 +40,21 @@ def quick_run(tables, tmp_path_factory):
     return out
 
 
+def assert_cells_record_their_training(out: Path) -> None:
+    """Every cell written holds the record of what it was trained with, equal to what the
+    current code expects for it (``ledger.cell_is_current``)."""
+    import ledger
+
+    cells = sorted((out / "cells").glob("*.json"))
+    assert cells
+    for path in cells:
+        cell = json.loads(path.read_text())
+        assert cell["training"] == ledger.expected_training(cell, cell["settings"]), path.name
+
+
 def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run):
     out = quick_run
+    assert_cells_record_their_training(out)
     text = (out / "tables.md").read_text()
     for heading in ("Table I: dangerous-behaviour frequency", "Table II: success rate",
                     "headline figures", "Scorecard", "Aggregates over the 9",
@@ -165,6 +178,7 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert not result["selection"]["protocol"]  # one pair, quick: provisional
     assert "the quick mode" in result["selection"]["provisional_because"]
     assert result["pairs"][0]["device"].startswith("cpu")
+    assert_cells_record_their_training(out)
     for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
     capsys.readouterr()
@@ -193,6 +207,7 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert cell["checks"][-1]["budget"] == cell["env_steps"][-1]
     assert cell["plateaued_at_budget"] == cell["checks"][-1]["plateaued"]
     assert cell["device"].startswith("cpu")
+    assert_cells_record_their_training(out)
     for name in ("budgets.md", "curves_iddpg.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
     capsys.readouterr()
