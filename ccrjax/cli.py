@@ -222,6 +222,18 @@ def dataclass_overrides(args: argparse.Namespace, prefix: str) -> dict[str, Any]
     }
 
 
+def make_folder(path: str | os.PathLike[str], option: str = "--out") -> None:
+    """Creates the output folder ``path`` (and its parents) before any work is done, or
+    raises :class:`UsageError` naming ``option``: a file there, or a folder that cannot be
+    created, must not surface only when the results are written."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"{option} {path} is a file, not a folder")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"{option} {path} cannot be created ({error.strerror})") from None
+
+
 def default_cache_dir() -> str:
     """``$XDG_CACHE_HOME/ccrjax/xla`` (``~/.cache/ccrjax/xla`` by default)."""
 

@@ -82,15 +82,10 @@ def check_out(out: Path, force: bool) -> None:
     """Refuses, before anything compiles, an ``--out`` that is a file or that already holds
     a sweep (unless ``force``), then creates the folder, so that no training ends in a
     folder its results cannot be written to."""
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} is a file, not a folder")
-    if (out / "sweep.json").exists() and not force:
+    if out.is_dir() and (out / "sweep.json").exists() and not force:
         raise UsageError(f"--out {out} already holds a sweep (sweep.json): name another "
                          "folder, or give --force to replace it")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise UsageError(f"--out {out} cannot be created ({error.strerror})") from None
+    cli.make_folder(out)
 
 
 def run_sweep(args: argparse.Namespace) -> dict[str, Any]:

@@ -189,14 +189,13 @@ def check_out(out: Path, force: bool) -> str | None:
 def prepare_out(prog: str, out: Path, force: bool) -> None:
     """For a measurement script: ``out`` checked (:func:`check_out`) and created before
     anything is measured, or one line and status 2."""
-    problem = check_out(out, force)
-    if problem is None:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            problem = f"--out {out} cannot be created ({error.strerror})"
-    if problem:
-        cli.fail(prog, problem)
+    try:
+        problem = check_out(out, force)
+        if problem:
+            raise cli.UsageError(problem)
+        cli.make_folder(out)
+    except cli.UsageError as error:
+        cli.fail(prog, str(error))
 
 
 def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
@@ -211,10 +210,10 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
                                                             settings_record(settings), force)
         if problem:
             raise cli.UsageError(problem)
+        cli.make_folder(out)
     except (cli.UsageError, ValueError) as error:
         cli.fail(prog, str(error))
     cli.enable_compilation_cache(cli.default_cache_dir())
-    out.mkdir(parents=True, exist_ok=True)
     command = " ".join([prog, *(argv if argv is not None else sys.argv[1:])])
     ledger = Ledger(out, settings, command, prog)
     ledger.record(0)

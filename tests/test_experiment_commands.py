@@ -239,6 +239,8 @@ def test_an_out_that_is_a_file_is_refused(search, tmp_path, capsys):
     afile = tmp_path / "notes.md"
     afile.write_text("x")
     refused(search, ["--variant", "ccr", "--out", str(afile)], capsys, "is a file")
+    refused(search, ["--variant", "ccr", "--out", str(afile / "below")], capsys,
+            "cannot be created")
 
 
 def test_a_search_never_trains_over_the_other_searchs_or_other_settings_cells(
