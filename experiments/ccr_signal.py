@@ -244,12 +244,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.train_steps is not None and args.trained is None:
         cli.fail(PROG, "--train-steps applies only with --trained")
     train_steps = TRAIN_STEPS if args.train_steps is None else args.train_steps
-    prepare_out(PROG, args.out, args.force)
     if args.trained is not None:
         try:  # the budget checked before anything compiles
             TrainConfig(algo=args.trained, scenario="nominal", total_env_steps=train_steps)
         except ValueError as error:
             cli.fail(PROG, str(error))
+    prepare_out(PROG, args.out, args.force)
     commit = git_commit()  # the code that measures is the code loaded now
     start = time.time()
     products = tf32_model_products() if args.matmul == "tf32" else contextlib.nullcontext()

@@ -346,8 +346,12 @@ def test_the_behaviour_exploration_refuses_bad_input_and_the_protocols_seeds(arg
     ("calibrate", ["--episodes", "0"], ("--episodes",)),
     ("calibrate", ["--seed", "x"], ("--seed",)),
 ])
-def test_the_measurement_scripts_refuse_bad_input_in_one_line(script, argv, fragments, capsys):
-    refused(load(script), argv, capsys, *fragments)
+def test_the_measurement_scripts_refuse_bad_input_in_one_line(script, argv, fragments, capsys,
+                                                              tmp_path):
+    out = tmp_path / "never"
+    writes = script != "sanity"  # sanity.py prints, it has no --out
+    refused(load(script), [*argv, *(["--out", str(out)] if writes else [])], capsys, *fragments)
+    assert not out.exists()  # refused before its folder was made
 
 
 def test_the_measurement_scripts_replace_committed_results_only_with_force(
