@@ -69,21 +69,12 @@ FINAL_METRICS = ("return", "success_rate", "danger_frequency")
 YES_NO = {True: "yes", False: "**no**", None: "too few evaluations"}
 
 
-@dataclasses.dataclass(frozen=True)
-class Settings:
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Settings(protocol.Settings):
     """What every cell is trained and checked with (a cell made otherwise is redone)."""
 
     seeds: tuple[int, ...] = protocol.BUDGET_SEEDS
-    steps: int | None = None  # None: the protocol's budget of each learner
-    eval_every: int = protocol.EVAL_EVERY
-    eval_episodes: int = protocol.EVAL_EPISODES
-    candidate_every: int = CANDIDATE_EVERY
-    scenarios: tuple[str, ...] = SCENARIOS
-    algos: tuple[str, ...] = ALGOS
-    quick: bool = False
-
-    def budget(self, algo: str) -> int:
-        return protocol.budget(algo, self.steps)
+    candidate_every: int = CANDIDATE_EVERY  # steps between the candidate budgets checked
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, "plain")

@@ -19,7 +19,6 @@ import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import jax
@@ -135,9 +134,10 @@ def expected_training(cell: dict[str, Any], record: dict[str, Any]) -> dict[str,
     ``record`` at the current code (the protocol's run configuration, the variant's
     default transform)."""
     variant = cell.get("variant") or record.get("variant") or "plain"
-    settings = SimpleNamespace(steps=record.get("steps"), quick=record.get("quick", False),
-                               eval_every=record["eval_every"],
-                               eval_episodes=record["eval_episodes"])
+    settings = protocol.Settings(seeds=tuple(record.get("seeds", ())), steps=record.get("steps"),
+                                 quick=record.get("quick", False),
+                                 eval_every=record["eval_every"],
+                                 eval_episodes=record["eval_episodes"])
     return training_record(protocol.run_config(settings, cell["scenario"], cell["algo"],
                                                variant))
 

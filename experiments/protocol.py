@@ -13,8 +13,9 @@ from typing import Any
 
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
+from ccrjax.run.paper import SCENARIOS
 from ccrjax.run.selection import SelectionRule
-from ccrjax.training import TrainConfig
+from ccrjax.training import ALGOS, TrainConfig
 
 # Seeds: the tables' seeds never select a hyperparameter and never choose a budget.
 TABLE_SEEDS = tuple(range(0, 10))
@@ -62,11 +63,33 @@ def budget(algo: str, steps: int | None) -> int:
     return steps if steps is not None else BUDGETS[algo]
 
 
-def run_config(settings: Any, scenario: str, algo: str, variant: str,
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Settings:
+    """The settings every experiment trains its cells with (``budgets.py``, ``search.py``
+    and ``tables.py`` each add their own fields and default seeds). They are stored in
+    every cell; a cell made with other settings is trained again
+    (``ledger.cell_is_current``)."""
+
+    seeds: tuple[int, ...]
+    steps: int | None = None  # None: the protocol's budget of each learner
+    eval_every: int = EVAL_EVERY
+    eval_episodes: int = EVAL_EPISODES
+    quick: bool = False  # tiny sizes (:func:`quick`): the pipeline, not the learning
+    # Which programs an invocation trains, not what a cell holds (ledger.NOT_IN_CELLS):
+    # a grid can be split over invocations.
+    scenarios: tuple[str, ...] = SCENARIOS
+    algos: tuple[str, ...] = ALGOS
+
+    def budget(self, algo: str) -> int:
+        """Environment steps per run of learner ``algo``."""
+        return budget(algo, self.steps)
+
+
+def run_config(settings: Settings, scenario: str, algo: str, variant: str,
                **fields: Any) -> TrainConfig:
-    """One run's configuration under an experiment's ``settings`` (its ``steps``,
-    ``eval_every``, ``eval_episodes`` and ``quick``): :func:`budget` steps, tiny sizes if
-    ``quick``; ``fields`` set the rest (the transform)."""
+    """One run's configuration under an experiment's ``settings``: :func:`budget` steps,
+    its evaluation interval and episodes, tiny sizes if ``quick``; ``fields`` set the rest
+    (the transform)."""
     base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
     if settings.quick:
         base = quick(base)

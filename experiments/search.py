@@ -63,22 +63,13 @@ PROG = "python experiments/search.py"
 LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 
 
-@dataclasses.dataclass(frozen=True)
-class Settings:
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Settings(protocol.Settings):
     """What every cell of a search is trained with (a cell made otherwise is redone)."""
 
-    variant: str
-    values: tuple[float, ...]
+    variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
+    values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
-    steps: int | None = None  # None: the protocol's budget of each learner
-    eval_every: int = protocol.EVAL_EVERY
-    eval_episodes: int = protocol.EVAL_EPISODES
-    scenarios: tuple[str, ...] = SCENARIOS
-    algos: tuple[str, ...] = ALGOS
-    quick: bool = False
-
-    def budget(self, algo: str) -> int:
-        return protocol.budget(algo, self.steps)
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, self.variant)

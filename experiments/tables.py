@@ -125,26 +125,16 @@ METRICS = POINT_METRICS
 SEARCHES = RESULTS / "search"
 
 
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """What every cell is trained with (a cell made with other settings is redone)."""
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Settings(protocol.Settings):
+    """What every cell is trained with (a cell made with other settings is redone); the
+    tables need all 18 programs, which may come from several invocations."""
 
-    lam: float
-    penalty: float
+    lam: float  # CCR's lambda (the search's selection)
+    penalty: float  # the pessimistic penalty (the search's selection)
     seeds: tuple[int, ...] = protocol.TABLE_SEEDS
-    steps: int | None = None  # None: the protocol's budget of each learner
-    eval_every: int = protocol.EVAL_EVERY
-    eval_episodes: int = protocol.EVAL_EPISODES
-    behaviour_episodes: int = 64
-    controller_episodes: int = 1024
-    quick: bool = False
-    # Which programs this invocation trains (not what a cell holds): the grid can be split
-    # over invocations, e.g. lanes side by side on one GPU; the tables need all 18.
-    scenarios: tuple[str, ...] = SCENARIOS
-    algos: tuple[str, ...] = ALGOS
-
-    def budget(self, algo: str) -> int:
-        return protocol.budget(algo, self.steps)
+    behaviour_episodes: int = 64  # episodes of the behaviour analysis per seed
+    controller_episodes: int = 1024  # episodes of each reference controller
 
     def config(self, scenario: str, algo: str, variant: str) -> TrainConfig:
         transform = {"plain": None, "pessimistic": Pessimistic(penalty=self.penalty),
