@@ -22,6 +22,7 @@ import signal
 import sys
 import typing
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any, NoReturn
 
 import jax
@@ -29,6 +30,9 @@ import jax
 from ccrjax.checks import in_interval, interval_text
 
 USAGE_ERROR = 2
+# The repository's committed results (a checkout's experiments/results/): written only when
+# a command is given --force.
+COMMITTED_RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
 INTERRUPTED = 130  # the shell's status for a command stopped by Ctrl-C
 
 
@@ -36,8 +40,26 @@ class UsageError(Exception):
     """A mistake of the user's: reported as one line, exit status 2, no traceback."""
 
 
+# A Sphinx role in a docstring (:mod:`x`, :func:`~a.b`): the name alone in --help.
+_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")
+
+
+def plain_text(text: str | None) -> str | None:
+    """``text`` (a docstring) without its reStructuredText markup: roles become the names
+    they point to and double backticks go, so that ``--help`` reads as plain text."""
+    if text is None:
+        return None
+    return _ROLE.sub(lambda match: match.group(1), text).replace("``", "")
+
+
 class Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr, exit status 2."""
+    """An argument parser whose errors are one line on stderr, exit status 2, and whose
+    description and epilog (often taken from a module's docstring) show as plain text."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        for name in ("description", "epilog"):
+            kwargs[name] = plain_text(kwargs.get(name))
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
@@ -222,6 +244,21 @@ def dataclass_overrides(args: argparse.Namespace, prefix: str) -> dict[str, Any]
     }
 
 
+def in_option_terms(message: str, prefixes: dict[str, str], options: Iterable[str]) -> str:
+    """``message`` with every ``Owner.field`` of a dataclass whose fields are options
+    (:func:`add_dataclass_options`; ``prefixes`` maps the class name to the options'
+    prefix) written as the option the user typed: ``DDPGConfig.gamma`` becomes
+    ``--ddpg-gamma`` where ``options`` has it."""
+    known = set(options)
+
+    def option(match: re.Match[str]) -> str:
+        name = f"--{prefixes[match.group(1)]}-{match.group(2).replace('_', '-')}"
+        return name if name in known else match.group(0)
+
+    owners = "|".join(re.escape(owner) for owner in prefixes)
+    return re.sub(rf"\b({owners})\.([A-Za-z_][A-Za-z0-9_]*)", option, message)
+
+
 def make_folder(path: str | os.PathLike[str], option: str = "--out") -> None:
     """Creates the output folder ``path`` (and its parents) before any work is done, or
     raises :class:`UsageError` naming ``option``: a file there, or a folder that cannot be
@@ -232,6 +269,24 @@ def make_folder(path: str | os.PathLike[str], option: str = "--out") -> None:
         os.makedirs(path, exist_ok=True)
     except OSError as error:
         raise UsageError(f"{option} {path} cannot be created ({error.strerror})") from None
+
+
+def committed_results_problem(out: str | os.PathLike[str], force: bool,
+                              results: Path = COMMITTED_RESULTS) -> str | None:
+    """Why ``--out out`` may not be written without ``--force`` (``None`` if it may): it
+    lies inside the committed ``results`` folder, so a mistyped folder never overwrites
+    (or adds to) the results a repository's tables were made from."""
+    if force:
+        return None
+    try:
+        inside = Path(out).resolve().is_relative_to(results.resolve())
+    except OSError:
+        return None
+    if not inside:
+        return None
+    if os.path.isdir(out) and any(os.scandir(out)):
+        return f"--out {out} holds committed results; give --force to add to or replace them"
+    return f"--out {out} is inside the committed results ({results}); give --force to write there"
 
 
 def default_cache_dir() -> str:

@@ -30,7 +30,14 @@ import numpy as np
 from ccrjax import cli
 from ccrjax.cli import INTERRUPTED, UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
-from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, summary_table, write_atomic
+from ccrjax.run.folder import (
+    EVAL_METRICS,
+    METRIC_RANGES,
+    RunFolder,
+    fingerprint,
+    summary_table,
+    write_atomic,
+)
 from ccrjax.run.spec import RunSpec
 from ccrjax.run.stats import mean_ci
 from ccrjax.training import make_train
@@ -103,17 +110,22 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
         "episode_seed": seed,
         "seeds": seeds,
         "per_seed": per_seed,
-        "mean_ci95": {m: mean_ci([v[m] for v in per_seed.values()]) for m in EVAL_METRICS},
+        "mean_ci95": {m: mean_ci([v[m] for v in per_seed.values()], bounds=METRIC_RANGES[m])
+                      for m in EVAL_METRICS},
     }
     write_atomic(folder.path / "evaluation.json", json.dumps(summary, indent=2) + "\n")
     print(f"{folder.path}: checkpoint {restored.step:,} steps per seed, "
           f"{episodes} fresh episodes per seed")
     print(summary_table(summary))
     if pictures:
-        key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
+        # The episode comes from --seed, as the scored ones do (a different episode for
+        # each --seed), but from a stream of its own.
+        key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), EVALUATION_STREAM),
+                                 PICTURE_KEY)
         record = record_trained_episode(
             program, seed_slice(state, 0), key,
-            caption=f"seed {seeds[0]}, a fresh evaluation episode, deterministic policy")
+            caption=f"seed {seeds[0]}'s policy (deterministic), an episode drawn from "
+            f"evaluate --seed {seed}")
         png, gif = write_episode_pictures(record, folder.path)
         print(f"\npictures: {png}  {gif}")
     return 0

@@ -7,8 +7,9 @@ and learner under the protocol and its selection rule; this command searches one
         --values 0 1 3 10 30 100 --seeds 3 --out runs/sweep
     python -m ccrjax.sweep --variant pessimistic --values 0 0.1 1 10 --out runs/penalty
 
-which trains ``len(values) x seeds`` runs at once (0 is the plain learner: CCR's
-reward unchanged, or no penalty) and writes ``sweep.md`` (a table of the metrics per
+which trains ``len(values) x seeds`` runs at once (0 is the reference: the pessimistic
+penalty 0 is exactly the plain learner; CCR's lambda 0 leaves the reward unchanged while
+its robots still observe the shared scores) and writes ``sweep.md`` (a table of the metrics per
 value, mean and 95% interval over seeds), ``sweep.json`` (per-seed values) and
 ``tradeoff.png`` (dangerous-behaviour frequency against success rate, one point per
 value with its intervals).
@@ -37,7 +38,7 @@ from ccrjax.run.search import (
     search_rows,
 )
 from ccrjax.run.stats import format_mean_ci
-from ccrjax.training import ALGOS, LEARNING_STARTS, TrainConfig
+from ccrjax.training import ALGOS, DEFAULT_BUDGET, LEARNING_STARTS, TrainConfig
 from ccrjax.training.grid import train_grid
 from ccrjax.viz.plots import draw_search_tradeoff
 
@@ -57,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algo", choices=ALGOS, default="maddpg",
                         help="learner (default: %(default)s)")
     parser.add_argument("--values", type=cli.non_negative_float, nargs="+", default=None,
-                        help="values of lambda or of the penalty; 0 is the plain learner "
+                        help="values of lambda or of the penalty, each once; 0 is the reference "
                         "(default: 0 and the protocol's six values, docs/protocol.md)")
     parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
                         help="seeds per value, at least 2 for an interval (default: %(default)s)")
@@ -65,7 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first seed (default: %(default)s, the selection seeds: disjoint "
                         "from the tables' 0-9)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
-                        help="environment steps per run (default: the learner's default budget)")
+                        help="environment steps per run (default: python -m ccrjax.train's budget "
+                        "of the learner, " + ", ".join(f"{steps:,} for {algo}"
+                                              for algo, steps in DEFAULT_BUDGET.items())
+                        + "; the protocol's searches, experiments/search.py, use more)")
     parser.add_argument("--learning-starts", type=cli.int_in(0), default=LEARNING_STARTS,
                         help="transitions per seed before the first update "
                         "(default: %(default)s)")
@@ -79,9 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_out(out: Path, force: bool) -> None:
-    """Refuses, before anything compiles, an ``--out`` that is a file or that already holds
-    a sweep (unless ``force``), then creates the folder, so that no training ends in a
-    folder its results cannot be written to."""
+    """Refuses, before anything compiles, an ``--out`` that is a file, that already holds
+    a sweep or that lies in the committed results (both unless ``force``), then creates
+    the folder, so that no training ends in a folder its results cannot be written to."""
+    problem = cli.committed_results_problem(out, force)
+    if problem:
+        raise UsageError(problem)
     if out.is_dir() and (out / "sweep.json").exists() and not force:
         raise UsageError(f"--out {out} already holds a sweep (sweep.json): name another "
                          "folder, or give --force to replace it")
@@ -93,9 +100,13 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
                          total_env_steps=args.steps, eval_episodes=args.eval_episodes,
                          learning_starts=args.learning_starts)
     config = dataclasses.replace(config, eval_every=config.budget // 10 or 1)
-    check_out(args.out, args.force)
     values = [0.0, *DEFAULT_VALUES[args.variant]] if args.values is None else args.values
-    values = sorted({float(v) for v in values})
+    repeated = sorted({float(v) for v in values if values.count(v) > 1})
+    if repeated:
+        raise UsageError("--values repeats " + ", ".join(f"{v:g}" for v in repeated)
+                         + ": give each value once")
+    values = sorted(float(v) for v in values)
+    check_out(args.out, args.force)
     seeds = [args.seed_offset + k for k in range(args.seeds)]
     commit = git_commit()  # the code that trains is the code loaded now
     name, grid_seeds, grid_values = search_grid(config, values, seeds)
@@ -118,6 +129,18 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def reference_text(result: dict[str, Any]) -> str:
+    """What the value 0 is, where the sweep has it: the pessimistic penalty 0 is exactly
+    the plain learner; CCR's lambda 0 leaves the reward alone, but its robots still
+    observe the shared scores."""
+    if not any(row["value"] == 0 for row in result["rows"]):
+        return "; no value 0, so no plain reference"
+    if result["variant"] == "pessimistic":
+        return "; penalty 0 is exactly the plain learner"
+    return ("; lambda 0 is the learner without CCR's reward (its robots still observe the "
+            "shared scores)")
+
+
 def sweep_table(result: dict[str, Any]) -> str:
     name = result["parameter"]
     lines = [
@@ -125,8 +148,8 @@ def sweep_table(result: dict[str, Any]) -> str:
         "",
         f"{result['env_steps']:,} environment steps per run, {len(result['rows'][0]['seeds'])} "
         f"seeds per value, {result['eval_episodes']} evaluation episodes; mean [95% CI] over "
-        "seeds (Student t, clipped to the metric's range); 0 is the plain learner. Command: `"
-        + result["command"] + "`.",
+        "seeds (Student t, clipped to the metric's range)"
+        + reference_text(result) + ". Command: `" + result["command"] + "`.",
         "",
         f"| {name} | danger frequency | success rate | return | distance to hazard |",
         "|---|---|---|---|---|",

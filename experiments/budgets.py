@@ -210,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
                         default=list(SCENARIOS), help="scenarios (default: the paper's three)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per seed for every learner (default: the "
-                        f"protocol's budgets {protocol.BUDGETS})")
+                        f"protocol's budgets, {protocol.budgets_text()})")
     parser.add_argument("--eval-every", type=cli.positive_int, default=None,
                         help="environment steps between evaluations (default: "
                         f"{protocol.EVAL_EVERY})")

@@ -172,18 +172,12 @@ def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
 
 
 def check_out(out: Path, force: bool) -> str | None:
-    """Why ``out`` may not be written (``None`` if it may): committed results under
-    ``experiments/results/`` are replaced only with ``--force``."""
+    """Why ``out`` may not be written (``None`` if it may): a file, or a folder of the
+    committed results under ``experiments/results/`` without ``--force``."""
     if out.exists() and not out.is_dir():
         return f"--out {out} is a file, not a folder"
-    try:
-        inside = out.resolve().is_relative_to(RESULTS.resolve())
-    except OSError:
-        return None
-    if inside and out.exists() and any(out.iterdir()) and not force:
-        return (f"--out {out} holds committed results; give --force to add to or replace "
-                "them (cells made with the same settings are kept)")
-    return None
+    problem = cli.committed_results_problem(out, force, RESULTS)
+    return problem and f"{problem} (cells made with the same settings are kept)"
 
 
 def prepare_out(prog: str, out: Path, force: bool) -> None:
@@ -200,14 +194,18 @@ def prepare_out(prog: str, out: Path, force: bool) -> None:
 
 def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
                     settings_of: Callable[[], Any]) -> tuple[Any, Ledger]:
-    """The start every experiment shares: ``settings_of()`` builds and validates the
-    settings (raising :class:`ccrjax.cli.UsageError` or ``ValueError``), ``out`` is
-    checked, and any problem ends the command with one line and status 2 before anything
-    compiles; then the compilation cache, the folder and this invocation's record."""
+    """The start every experiment shares: ``out`` is checked (:func:`check_out`),
+    ``settings_of()`` builds and validates the settings (raising
+    :class:`ccrjax.cli.UsageError` or ``ValueError``), ``out`` must not hold another
+    experiment's results, and any problem ends the command with one line and status 2
+    before anything compiles; then the compilation cache, the folder and this invocation's
+    record."""
     try:
+        problem = check_out(out, force)
+        if problem:
+            raise cli.UsageError(problem)
         settings = settings_of()
-        problem = check_out(out, force) or check_experiment(out, prog,
-                                                            settings_record(settings), force)
+        problem = check_experiment(out, prog, settings_record(settings), force)
         if problem:
             raise cli.UsageError(problem)
         cli.make_folder(out)

@@ -58,6 +58,13 @@ SEARCHED = {"ccr": ("lam", LAMBDAS), "pessimistic": ("penalty", PENALTIES)}
 RULE = SelectionRule(objective="danger_frequency", constraint="success_rate", tolerance=0.05)
 
 
+def budgets_text() -> str:
+    """The protocol's budgets in words, for ``--help``: ``"3,000,000 for every learner"``."""
+    if len(set(BUDGETS.values())) == 1:
+        return f"{next(iter(BUDGETS.values())):,} for every learner"
+    return ", ".join(f"{steps:,} for {algo}" for algo, steps in BUDGETS.items())
+
+
 def budget(algo: str, steps: int | None) -> int:
     """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``."""
     return steps if steps is not None else BUDGETS[algo]

@@ -255,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first seed (default: %(default)s; the tables use 0-9)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
-                        f"protocol's budgets {protocol.BUDGETS})")
+                        f"protocol's budgets, {protocol.budgets_text()})")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                         help="scenarios (default: all three)")
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),

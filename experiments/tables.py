@@ -776,7 +776,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first seed (default: 0); must stay clear of the selection "
                         "seeds 100-102 and the budgets' 200-202")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
-                        help=f"environment steps per run (default: {protocol.BUDGETS})")
+                        help="environment steps per run (default: the protocol's budgets, "
+                        f"{protocol.budgets_text()})")
     parser.add_argument("--lam", type=cli.non_negative_float, default=None,
                         help="CCR's lambda (default: the lambda search's choice, "
                         "<searches>/ccr/search.json)")
@@ -785,7 +786,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "<searches>/pessimistic/search.json)")
     parser.add_argument("--searches", type=Path, default=SEARCHES,
                         help="the folder holding both searches' results, ccr/ and "
-                        "pessimistic/ (default: the committed ones, %(default)s; "
+                        "pessimistic/ (default: the committed ones, experiments/results/search; "
                         "runs/search after `make sweep` and `make penalty-sweep`)")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
@@ -834,9 +835,6 @@ def main(argv: list[str] | None = None) -> int:
         if args.quick and args.out is None:
             raise cli.UsageError("--quick needs --out: quick numbers must not mix with a "
                                  "real grid's")
-        lam, sources["lam"] = selected("ccr", args.lam, args.quick, args.searches)
-        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick,
-                                               args.searches)
         fields: dict[str, Any] = dict(QUICK, quick=True) if args.quick else {}
         if args.steps is not None:
             fields["steps"] = args.steps
@@ -850,11 +848,18 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError(problem)
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
-        settings = Settings(lam=lam, penalty=penalty, **fields)
-        for job in jobs_of(settings):  # every configuration validated before compiling
-            for variant in job.variants:
-                settings.config(job.scenario, job.algo, variant)
-        return settings
+        def validated(settings: Settings) -> Settings:
+            for job in jobs_of(settings):  # every configuration validated before compiling
+                for variant in job.variants:
+                    settings.config(job.scenario, job.algo, variant)
+            return settings
+
+        # The searches' choices last: the command line's own problems are named first.
+        settings = validated(Settings(lam=0.0, penalty=0.0, **fields))
+        lam, sources["lam"] = selected("ccr", args.lam, args.quick, args.searches)
+        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick,
+                                               args.searches)
+        return validated(dataclasses.replace(settings, lam=lam, penalty=penalty))
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))

@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax import evaluate, sweep, train
+from ccrjax import cli, evaluate, sweep, train
 from ccrjax.run.checkpoint import Checkpoints
-from ccrjax.run.folder import EVAL_METRICS, RunFolder, fingerprint, read_metrics
+from ccrjax.run.folder import EVAL_METRICS, METRIC_RANGES, RunFolder, fingerprint, read_metrics
 from ccrjax.run.stats import mean_ci
 from ccrjax.training import make_train
 from ccrjax.training.acting import episode_metrics, run_episode
@@ -68,8 +68,10 @@ def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys)
     for name in ("config.json", "checkpoints"):
         source = finished_run / name
         (os.symlink if source.is_dir() else os.link)(source, out / name)
-    assert evaluate.main([str(out), "--episodes", "6", "--seed", "5", "--no-pictures"]) == 0
+    assert evaluate.main([str(out), "--episodes", "6", "--seed", "5"]) == 0
     capsys.readouterr()
+    # The picture's episode comes from --seed: not the one training drew.
+    assert (out / "episode.png").read_bytes() != (finished_run / "episode.png").read_bytes()
     result = json.loads((out / "evaluation.json").read_text())
     spec, restored = restore_final(finished_run)
     assert result["checkpoint_env_steps"] == restored.step == 400
@@ -95,7 +97,11 @@ def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys)
                                        rtol=1e-5, atol=1e-7, err_msg=f"seed {seed} {name}")
     for name in EVAL_METRICS:
         values = [result["per_seed"][str(s)][name] for s in spec.seed_list]
-        assert result["mean_ci95"][name] == pytest.approx(mean_ci(values))
+        expected = mean_ci(values, bounds=METRIC_RANGES[name])
+        assert result["mean_ci95"][name] == pytest.approx(expected)
+        low, high = METRIC_RANGES[name]
+        assert low <= result["mean_ci95"][name]["ci_low"] <= result["mean_ci95"][name]["ci_high"]
+        assert result["mean_ci95"][name]["ci_high"] <= high
     # Fresh episodes: not the run's own last evaluation (other keys, other episodes).
     last = [r for r in read_metrics(finished_run / "metrics.csv") if r["env_steps"] == 400]
     assert [r["return"] for r in last] != [result["per_seed"][str(s)]["return"]
@@ -224,4 +230,15 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
     (earlier / "sweep.json").write_text("{}")
     refused(earlier, "already holds a sweep", "--force")
     assert (earlier / "sweep.json").read_text() == "{}"
+    # The committed results: a folder of them, or a new one among them, needs --force.
+    committed = cli.COMMITTED_RESULTS / "search" / "ccr"
+    before = sorted(p.name for p in committed.iterdir())
+    refused(committed, "holds committed results", "--force")
+    assert sorted(p.name for p in committed.iterdir()) == before
+    refused(cli.COMMITTED_RESULTS / "never_made", "inside the committed results", "--force")
+    assert not (cli.COMMITTED_RESULTS / "never_made").exists()
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main(["--values", "0", "1", "1", "--out", str(tmp_path / "repeated")])
+    assert exit_.value.code == 2 and "--values repeats 1" in capsys.readouterr().err
+    assert not (tmp_path / "repeated").exists()
     assert sweep.DEFAULT_VALUES == {v: values for v, (_, values) in protocol.SEARCHED.items()}

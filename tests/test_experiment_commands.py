@@ -5,8 +5,10 @@ before learning starts, and an ``--out`` that would overwrite committed results.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -115,6 +117,9 @@ def test_committed_results_need_force(search, tables, budgets, tmp_path, capsys,
     refused(tables, ["--lam", "30", "--penalty", "1", "--out", str(results / "search")],
             capsys, "--force")
     refused(budgets, ["--out", str(results / "search")], capsys, "--force")
+    refused(budgets, ["--out", str(results / "search" / "sub")], capsys,
+            "inside the committed results", "--force")
+    assert not (results / "search" / "sub").exists()
 
 
 def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
@@ -130,6 +135,12 @@ def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(tables, "SEARCHES", tmp_path / "no-searches")
     refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam",
             "--searches")
+    # Without a selection to read, the command line's own problems still come first.
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    refused(tables, ["--out", str(afile)], capsys, "is a file")
+    refused(tables, ["--seed-offset", "95", "--out", out], capsys, "selection seeds")
+    refused(tables, ["--steps", "1000", "--out", out], capsys, "ends before learning starts")
 
 
 def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[str, str],
@@ -460,3 +471,18 @@ def test_a_cell_made_with_other_training_parameters_is_not_current(search, budge
     assert not ledger.cell_is_current({**cell, "training": harder}, record)
     legacy = {k: v for k, v in cell.items() if k != "training"}
     assert ledger.cell_is_current(legacy, record)
+
+
+@pytest.mark.parametrize("name", ["budgets", "search", "tables", "merge", "calibrate",
+                                  "ccr_signal", "ccrjax.train", "ccrjax.sweep",
+                                  "ccrjax.evaluate", "ccrjax.demo"])
+def test_help_is_plain_text_with_every_option_explained(name):
+    """``--help`` has a line for every option, no docstring markup (double backticks,
+    Sphinx roles) and no path of this checkout (it reads the same on every machine)."""
+    module = importlib.import_module(name) if name.startswith("ccrjax.") else load(name)
+    parser = module.build_parser()
+    text = parser.format_help()
+    for action in parser._actions:
+        assert action.help, f"{name}: {action.option_strings or action.dest} has no help"
+    assert "``" not in text and not re.search(r":[a-z]+:`", text), text
+    assert str(EXPERIMENTS.parent) not in text, text
