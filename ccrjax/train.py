@@ -79,6 +79,9 @@ from ccrjax.viz.episode_pictures import (
 from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 
 PROG = "python -m ccrjax.train"
+# The configuration dataclasses whose fields are options, and the options' prefix
+# (--ddpg-gamma is DDPGConfig.gamma): errors name the option, not the field.
+OPTION_PREFIXES = {"DDPGConfig": "ddpg", "MAACConfig": "maac", "CCRConfig": "ccr"}
 # A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
 DEFAULT_TRAIN = TrainConfig(scenario="hidden_obstacle", variant="ccr")
 # The options that set a TrainConfig field (option, field, converter, extras): the parser
@@ -145,10 +148,13 @@ def build_parser() -> argparse.ArgumentParser:
     folder.add_argument("--no-compilation-cache", action="store_true",
                         help="compile from scratch and keep nothing")
 
-    cli.add_dataclass_options(parser, DDPGConfig, "ddpg", "IDDPG / MADDPG hyperparameters",
+    cli.add_dataclass_options(parser, DDPGConfig, OPTION_PREFIXES["DDPGConfig"],
+                              "IDDPG / MADDPG hyperparameters",
                               exclude=("centralised_critic",))
-    cli.add_dataclass_options(parser, MAACConfig, "maac", "MAAC hyperparameters")
-    cli.add_dataclass_options(parser, CCRConfig, "ccr", "CCR parameters", exclude=("lam",))
+    cli.add_dataclass_options(parser, MAACConfig, OPTION_PREFIXES["MAACConfig"],
+                              "MAAC hyperparameters")
+    cli.add_dataclass_options(parser, CCRConfig, OPTION_PREFIXES["CCRConfig"], "CCR parameters",
+                              exclude=("lam",))
     return parser
 
 
@@ -181,7 +187,8 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
         ccr["lam"] = args.lam
     if ccr and variant != "ccr":
         given = "--lam" if args.lam is not None else "--ccr-* options"
-        raise UsageError(f"{given} apply to --variant ccr, not {variant}")
+        verb = "applies" if args.lam is not None else "apply"
+        raise UsageError(f"{given} {verb} to --variant ccr, not {variant}")
     train = dataclasses.replace(train, **fields)
     if ddpg or maac:
         train = dataclasses.replace(train, learner=dataclasses.replace(
@@ -261,8 +268,13 @@ def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
             )
         check_writable(folder.path)
         if asked > budget:  # the extension is recorded where the run is described
+            steps = folder.checkpoint_steps()
+            exact = bool(steps) and (folder.checkpoint_dir / str(steps[-1]) / "buffer").is_dir()
             record.setdefault("extensions", []).append(
                 {"from_total_env_steps": budget, "to_total_env_steps": asked,
+                 "runs_as_total_env_steps": spec.train.total_env_steps_run,
+                 "replay_buffer": "kept (exact)" if exact else
+                 "none kept: training goes on from an empty buffer",
                  "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
             record["schedule"] = spec.train.schedule()
         return folder, spec, record
@@ -544,6 +556,13 @@ def _prepared(folder: RunFolder, spec: RunSpec, program: Any, checkpoints: Check
     return session
 
 
+def say_skipped(restored: Any) -> None:
+    """Names the unreadable checkpoints that a restore moved aside, and the one it used."""
+    for step, why in restored.skipped:
+        print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
+              f"checkpoint {restored.step}", file=sys.stderr, flush=True)
+
+
 def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax.Array,
             abstract_state: Any, run_fingerprint: str, total_steps: int
             ) -> tuple[Any, list[dict[str, Any]], float]:
@@ -554,9 +573,7 @@ def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax
                                               abstract_state.buffer, run_fingerprint)
     except CheckpointError as error:  # IncompatibleCheckpoint included
         raise UsageError(f"--resume: {error}") from None
-    for step, why in restored.skipped:
-        print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
-              f"checkpoint {restored.step}", file=sys.stderr, flush=True)
+    say_skipped(restored)
     buffer = restored.buffer
     capacity = abstract_state.buffer.reward.shape[1]
     if buffer is not None and buffer.reward.shape[1] < capacity:
@@ -618,6 +635,16 @@ def run_chunks(session: Session, on_point: Callable[[list[dict[str, Any]]], None
     return None
 
 
+def drop_finished_buffer(checkpoints: Checkpoints, step: int) -> None:
+    """A finished run needs no replay buffer, unless it is to be extended exactly: deletes
+    the one its last checkpoint ``step`` holds, saying so."""
+    freed = checkpoints.drop_buffer(step)
+    if freed:
+        print(f"the finished run's replay buffer ({freed / 2**20:,.0f} MiB) is not "
+              "kept (--keep-buffer keeps it, to extend the run exactly with --resume "
+              "--steps)", file=sys.stderr, flush=True)
+
+
 def close(session: Session, keep_buffer: bool) -> list[int]:
     """Waits for the checkpoints, drops a finished run's replay buffer unless
     ``keep_buffer``, closes the event files; returns the checkpoints kept."""
@@ -625,12 +652,7 @@ def close(session: Session, keep_buffer: bool) -> list[int]:
     checkpoints.wait()
     saved = checkpoints.steps()
     if saved and saved[-1] >= session.total_steps and not keep_buffer:
-        # A finished run needs no replay buffer, unless it is to be extended exactly.
-        freed = checkpoints.drop_buffer(saved[-1])
-        if freed:
-            print(f"the finished run's replay buffer ({freed / 2**20:,.0f} MiB) is not "
-                  "kept (--keep-buffer keeps it, to extend the run exactly with --resume "
-                  "--steps)", file=sys.stderr, flush=True)
+        drop_finished_buffer(checkpoints, saved[-1])
     checkpoints.close()
     session.folder.close_tensorboard()
     return saved
@@ -744,17 +766,56 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
     record = record_trained_episode(
         program, seed_slice(state, 0), key,
-        caption=f"seed {seeds[0]}, a fresh evaluation episode, deterministic policy")
+        caption=f"seed {seeds[0]}'s policy (deterministic), an episode drawn for the picture "
+        "(python -m ccrjax.evaluate --seed N draws others)")
     png, gif = write_episode_pictures(record, folder.path)
     policy = export_policy(folder.path, program, state.learner, list(seeds))
     print_summary(summary, folder)
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
-    print(f"policy: {policy} (ccrjax.load_policy({str(folder.path)!r}, seed={seeds[0]}))")
+    print(f"policy: {folder.path / policy.name} (ccrjax.load_policy({str(folder.path)!r}, "
+          f"seed={seeds[0]}))")
     if importlib.util.find_spec("tensorboard") is not None:
         print(f"TensorBoard: tensorboard --logdir {folder.tensorboard_dir}")
     elif folder.tensorboard_dir.exists():
         print(f"TensorBoard event files: {folder.tensorboard_dir} (to view them: "
-              "pip install -e '.[tensorboard]')")
+              ".venv/bin/pip install -e '.[tensorboard]')")
+
+
+def finished(folder: RunFolder, spec: RunSpec) -> bool:
+    """Whether the run in ``folder`` has trained all of ``spec``'s budget and written its
+    summary, by the names of its checkpoints (:func:`resume_finished` reads the last one)."""
+    steps = folder.checkpoint_steps()
+    return (bool(steps) and steps[-1] >= spec.train.total_env_steps_run
+            and (folder.path / "summary.json").exists())
+
+
+def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int | None:
+    """``--resume`` of a finished run at its own budget: its last checkpoint is read (without
+    the replay buffer) to check that it belongs to this run and is whole; then nothing is
+    trained or rewritten, and that checkpoint's replay buffer is dropped unless
+    ``keep_buffer``. Returns ``None`` where the last checkpoint was unreadable and moved
+    aside (said): the run then resumes from the one before, as any stopped run does."""
+    program = make_train(spec.train)
+    keys = jnp.stack([jax.random.PRNGKey(seed) for seed in spec.seed_list])
+    abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
+    checkpoints = Checkpoints(folder.checkpoint_dir, keep=spec.keep_checkpoints)
+    try:
+        restored = checkpoints.restore_latest(abstract_state.replace(buffer=None), None,
+                                              fingerprint(spec.to_dict()))
+        say_skipped(restored)
+        if restored.step < spec.train.total_env_steps_run:
+            return None
+        if not keep_buffer:
+            drop_finished_buffer(checkpoints, restored.step)
+    except CheckpointError as error:  # IncompatibleCheckpoint included
+        raise UsageError(f"--resume: {error}") from None
+    finally:
+        checkpoints.close()
+    print(f"{folder.path} is finished ({spec.train.total_env_steps_run:,} environment steps "
+          f"per seed): nothing to train; the folder holds "
+          f"{folder_bytes(folder.path) / 2**20:,.1f} MiB. python -m ccrjax.evaluate "
+          f"{folder.path} evaluates it again; --resume --steps N, N larger, extends it")
+    return 0
 
 
 def print_summary(summary: dict[str, Any], folder: Any) -> None:
@@ -767,7 +828,13 @@ def print_summary(summary: dict[str, Any], folder: Any) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.no_compilation_cache and args.compilation_cache != cli.default_cache_dir():
+        try:  # a folder the user named must work; the default one may fail quietly
+            cli.make_folder(args.compilation_cache, "--compilation-cache")
+        except UsageError as error:
+            cli.fail(PROG, str(error))
     cli.enable_compilation_cache(None if args.no_compilation_cache else args.compilation_cache)
     with StopRequest() as stop:
         try:
@@ -776,13 +843,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(f"stopped by {stop.signal_name} before the run began; nothing was written",
                       file=sys.stderr, flush=True)
                 return INTERRUPTED
+            if record is not None and finished(folder, spec):
+                status = resume_finished(folder, spec, args.keep_buffer)
+                if status is not None:
+                    return status
             return train_run(folder, spec, record,
                              progress_bar=(not args.no_progress) and sys.stderr.isatty(),
                              keep_buffer=args.keep_buffer, stop=stop)
         except UsageError as error:
             cli.fail(PROG, str(error))
         except ValueError as error:  # a configuration value the dataclasses refuse
-            cli.fail(PROG, str(error))
+            options = [o for action in parser._actions for o in action.option_strings]
+            cli.fail(PROG, cli.in_option_terms(str(error), OPTION_PREFIXES, options))
         except KeyboardInterrupt:
             print(f"{PROG}: stopped at once before the run began; nothing was written",
                   file=sys.stderr, flush=True)

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from PIL import Image
 
 from ccrjax.envs.env import CCREnv
@@ -154,14 +155,15 @@ def test_outcomes_are_read_at_the_end_and_marked(record: EpisodeRecord, tmp_path
             pixels, GOAL_COLOUR)
     assert red["all_in"] < red["ended"] < red["all_out"]
     assert green["all_out"] < green["ended"] < green["all_in"]
-    # The GIF marks the outcomes on its last frame only.
+    # The GIF marks the outcomes on its last frame only (its legend, on every frame, shows
+    # one mark of each kind).
     gif = tmp_path / "ended.gif"
     animate_episode(ended, gif, dpi=60)
     with Image.open(gif) as image:
         first = np.asarray(image.convert("RGB")).reshape(-1, 3)
         image.seek(STEPS)
         last = np.asarray(image.convert("RGB")).reshape(-1, 3)
-    assert colour_count(first, FAILURE_COLOUR) == 0 < colour_count(last, FAILURE_COLOUR)
+    assert 0 < colour_count(first, FAILURE_COLOUR) < colour_count(last, FAILURE_COLOUR)
     assert colour_count(first, GOAL_COLOUR) < colour_count(last, GOAL_COLOUR)
 
 
@@ -201,6 +203,17 @@ def test_pictures_show_each_robot_its_danger_and_the_caption(tmp_path):
     assert len(set(trajectory_colours)) == 3  # one colour per robot
     assert sum(rings) == int(record.danger.sum())  # every dangerous step marked
     assert "seed 7, ep 1" in titles[-1]
-    render.animate_episode(dataclasses.replace(record), tmp_path / "e.gif", dpi=40)
+    labels = []
+    original_legend = Figure.legend
+
+    def legend(self, *args, **kwargs):
+        labels.extend(h.get_label() for h in kwargs["handles"])
+        return original_legend(self, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Figure, "legend", legend)
+        render.animate_episode(dataclasses.replace(record), tmp_path / "e.gif", dpi=40)
+    ok = int(record.succeeded.sum())
+    assert f"succeeded ({ok})" in labels and f"failed ({3 - ok})" in labels  # the GIF's too
     with Image.open(tmp_path / "e.gif") as gif:
         assert gif.n_frames >= record.num_steps + 1  # a frame per step

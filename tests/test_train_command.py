@@ -396,12 +396,14 @@ def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(finished_run, t
         (["--lam", "-1", "--variant", "ccr"], "--lam"),
         (["--variant", "ccr", "--ccr-degree", "9"], "degree"),
         (["--variant", "ccr", "--ccr-window", "-1"], "window"),
-        (["--variant", "ccr", "--ccr-comm-range", "-0.5"], "comm_range"),
-        (["--variant", "plain", "--lam", "3"], "--lam"),
+        (["--variant", "ccr", "--ccr-comm-range", "-0.5"], "--ccr-comm-range must be"),
+        (["--variant", "plain", "--lam", "3"], "--lam applies to --variant ccr"),
         (["--robots", "1"], "--robots"),
-        (["--ddpg-actor-lr", "-0.1"], "actor_lr"),
+        (["--ddpg-actor-lr", "-0.1"], "--ddpg-actor-lr must be"),
         (["--ddpg-critic-hidden", "64,0"], "--ddpg-critic-hidden"),
-        (["--ddpg-gamma", "1.5"], "gamma"),
+        (["--ddpg-gamma", "1.5"], "--ddpg-gamma must be"),
+        (["--algo", "maac", "--maac-action-set", "x"], "--maac-action-set must be one of"),
+        (["--compilation-cache", "/dev/null"], "--compilation-cache /dev/null is a file"),
         (["--penalty", "2"], "--penalty"),
         (["--maac-policy-lr", "0.01"], "--maac"),
         (["--algo", "maac", "--ddpg-tau", "0.1"], "--ddpg"),
@@ -533,6 +535,9 @@ def test_the_exported_policy_acts_as_the_trained_learner(finished_run, tmp_path)
     assert not np.allclose(np.asarray(first), np.asarray(second))
     size = sum(f.stat().st_size for f in (copy / "policy").rglob("*") if f.is_file())
     assert size < 1_000_000  # small: networks only, no replay buffer
+    with pytest.raises(ValueError, match=r"obs must be \[batch, "):
+        first_act = ccrjax.load_policy(copy, seed=spec.seed_list[0])
+        first_act(obs[..., :-1])  # one feature short
     with pytest.raises(ValueError, match="seed must be one of"):
         ccrjax.load_policy(copy, seed=99)
     with pytest.raises(FileNotFoundError, match="no exported policy"):
@@ -571,6 +576,10 @@ def test_only_the_latest_checkpoint_keeps_a_replay_buffer(finished_run, tmp_path
     after = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     assert after < before
     assert "MiB" in printed and "the folder holds" in printed
+    # A finished run resumed at its budget trains nothing and rewrites nothing.
+    assert "is finished" in printed and "nothing to train" in printed
+    assert (out / "summary.json").read_text() == (finished_run / "summary.json").read_text()
+    assert read_metrics(out / "metrics.csv") == read_metrics(finished_run / "metrics.csv")
     # Everything but the buffer still restores; evaluation needs no buffer.
     restored = final_state(out)
     assert restored.step == FINAL_STEPS and restored.buffer is None
@@ -593,6 +602,8 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
     record = json.loads((extended / "config.json").read_text())
     assert record["run"]["train"]["total_env_steps"] == longer
     assert record["extensions"][0]["from_total_env_steps"] == FINAL_STEPS
+    assert record["extensions"][0]["runs_as_total_env_steps"] == longer
+    assert record["extensions"][0]["replay_buffer"] == "kept (exact)"
     fresh = tmp_path / "fresh"
     tiny = [str(a) for a in TINY]
     tiny[tiny.index("--steps") + 1] = str(longer)

@@ -61,7 +61,8 @@ def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], 
     ``MAACConfig.action_set``).
 
     Raises ``FileNotFoundError`` if the run exported no policy (it is written when a run
-    finishes) and ``ValueError`` for a seed the run did not train.
+    finishes) and ``ValueError`` for a seed the run did not train; the function raises
+    ``ValueError`` for observations of another shape.
     """
     run_folder = Path(run_folder).absolute()
     folder = run_folder / POLICY_DIR
@@ -83,9 +84,17 @@ def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], 
     index = record["seeds"].index(seed)
     state = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf[index]), state)
     key = jax.random.PRNGKey(0)  # unused: evaluation actions are deterministic
+    expected = (record["num_robots"], record["obs_size"])
 
     @jax.jit
-    def act(obs: jax.Array) -> jax.Array:
+    def greedy(obs: jax.Array) -> jax.Array:
         return learner.act(state, obs, key, False)
+
+    def act(obs: jax.Array) -> jax.Array:
+        shape = tuple(jnp.shape(obs))
+        if len(shape) != 3 or shape[1:] != expected:
+            raise ValueError(f"obs must be [batch, {expected[0]}, {expected[1]}] (batch, robots, "
+                             f"features; policy.json's num_robots and obs_size), got {shape}")
+        return greedy(obs)
 
     return act

@@ -97,6 +97,7 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
         ax.set_title(METRIC_TITLES.get(metric, metric), fontsize=10)
         ax.set_xlabel("environment steps per seed", fontsize=8)
         ax.xaxis.set_major_formatter(FuncFormatter(short_number))
+        ax.yaxis.set_major_formatter(FuncFormatter(short_number))  # counts reach 100k and more
         ax.tick_params(labelsize=8)
         ax.grid(alpha=0.3)
         if metric in ("success_rate", "danger_frequency"):
@@ -157,6 +158,11 @@ def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
 PARAMETER_SYMBOLS = {"lam": "λ", "penalty": "penalty"}
 
 
+# What the value 0 of a searched parameter is: the penalty 0 is exactly the plain learner;
+# CCR's lambda 0 leaves the reward unchanged while its robots still observe the shared scores.
+ZERO_NAMES = {"penalty": " (plain)", "lam": " (no CCR reward)"}
+
+
 def _interval(stats: dict) -> tuple[float, float]:
     """The distances from the mean to the (clipped) ends of a ``mean_ci`` summary."""
     if stats.get("ci_low") is None:
@@ -176,7 +182,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
     values = sorted({row["value"] for rows_ in panels.values() for row in rows_})
     legend_columns = min(len(values), 2 * columns + 1)
     legend_rows = -(-len(values) // legend_columns)
-    legend_height = 0.45 + 0.25 * legend_rows  # inches
+    legend_height = 0.25 + 0.2 * legend_rows  # inches: the legend's title and rows
     fig = Figure(figsize=(4.0 * columns + 0.6, 3.4 * rows + legend_height), dpi=dpi)
     FigureCanvasAgg(fig)
     colours = {value: _value_colour(index, len(values)) for index, value in enumerate(values)}
@@ -185,7 +191,8 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
         ax = fig.add_subplot(rows, columns, index + 1)
         for row in panels[title]:
             success, danger = row["success_rate"], row["danger_frequency"]
-            label = f"{symbol} = {row['value']:g}" + (" (plain)" if row["value"] == 0 else "")
+            label = f"{symbol} = {row['value']:g}" + (ZERO_NAMES.get(parameter, " (reference)")
+                                                      if row["value"] == 0 else "")
             ax.errorbar(success["mean"], danger["mean"],
                         xerr=np.array(_interval(success))[:, None],
                         yerr=np.array(_interval(danger))[:, None],

@@ -412,6 +412,12 @@ def _draw_outcomes(ax: Any, record: EpisodeRecord, size: float) -> list[Any]:
     if (~ok).any():
         ax.plot(end[~ok, 0], end[~ok, 1], marker="x", markersize=size, color=FAILURE_COLOUR,
                 markeredgewidth=2.0, linestyle="none", zorder=7)
+    return _outcome_handles(record)
+
+
+def _outcome_handles(record: EpisodeRecord) -> list[Any]:
+    """The legend entries of :func:`_draw_outcomes`, with how many robots each marks."""
+    ok = record.succeeded
     return [
         Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor=GOAL_COLOUR,
                markeredgewidth=1.8, linestyle="none", label=f"succeeded ({int(ok.sum())})"),
@@ -582,7 +588,8 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
 
     Robots are discs of their real radius, coloured by their current state (by robot
     when there is one state), outlined in red while in danger, each followed by a trail
-    in its own colour of its last ``trail`` steps (all by default).
+    in its own colour of its last ``trail`` steps (all by default); the last frame marks
+    each robot's outcome, and the legend says how many succeeded and failed.
     Frames share one 64-colour palette, which keeps 50 steps well below 2 MB.
     """
     if isinstance(fps, bool) or not isinstance(fps, int) or not 1 <= fps <= 100:
@@ -593,7 +600,7 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
     canvas = fig.canvas
     several_states = len(record.state_names) > 1
     _add_legend(fig, _robot_handles(record) + (_state_handles(record) if several_states else [])
-                + handles, 1.45, 7)
+                + [*_outcome_handles(record), *handles], 1.45, 7)
     ax.set_title(_title(record), fontsize=9)
     colours = [mcolors.to_rgba(c) for c in record.state_colours]
     positions = record.positions
