@@ -272,12 +272,14 @@ def make_folder(path: str | os.PathLike[str], option: str = "--out") -> None:
 
 
 def committed_results_problem(out: str | os.PathLike[str], force: bool,
-                              results: Path = COMMITTED_RESULTS) -> str | None:
+                              results: Path | None = None) -> str | None:
     """Why ``--out out`` may not be written without ``--force`` (``None`` if it may): it
-    lies inside the committed ``results`` folder, so a mistyped folder never overwrites
-    (or adds to) the results a repository's tables were made from."""
+    lies inside the committed ``results`` folder (:data:`COMMITTED_RESULTS` by default),
+    so a mistyped folder never overwrites (or adds to) the results a repository's tables
+    were made from."""
     if force:
         return None
+    results = COMMITTED_RESULTS if results is None else results
     try:
         inside = Path(out).resolve().is_relative_to(results.resolve())
     except OSError:

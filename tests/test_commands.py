@@ -208,7 +208,8 @@ def test_demo_command_at_a_tiny_size(tmp_path, subprocess_env):
             assert gif.format == "GIF" and gif.n_frames >= 5
 
 
-def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_path, capsys):
+def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_path, capsys,
+                                                                             monkeypatch):
     """A file as --out, or a folder that already holds a sweep (without --force), gets one
     line and status 2 before anything compiles; the default values are the protocol's."""
     import protocol
@@ -230,13 +231,18 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
     (earlier / "sweep.json").write_text("{}")
     refused(earlier, "already holds a sweep", "--force")
     assert (earlier / "sweep.json").read_text() == "{}"
-    # The committed results: a folder of them, or a new one among them, needs --force.
-    committed = cli.COMMITTED_RESULTS / "search" / "ccr"
-    before = sorted(p.name for p in committed.iterdir())
+    # The committed results (a stand-in here, so that a failure writes nothing of the
+    # repository's): a folder of them, or a new one among them, needs --force.
+    assert cli.committed_results_problem(cli.COMMITTED_RESULTS / "x", False)  # the real ones
+    results = tmp_path / "results"
+    (results / "search" / "ccr").mkdir(parents=True)
+    (results / "search" / "ccr" / "search.json").write_text("{}")
+    monkeypatch.setattr(cli, "COMMITTED_RESULTS", results)
+    committed = results / "search" / "ccr"
     refused(committed, "holds committed results", "--force")
-    assert sorted(p.name for p in committed.iterdir()) == before
-    refused(cli.COMMITTED_RESULTS / "never_made", "inside the committed results", "--force")
-    assert not (cli.COMMITTED_RESULTS / "never_made").exists()
+    assert sorted(p.name for p in committed.iterdir()) == ["search.json"]
+    refused(results / "never_made", "inside the committed results", "--force")
+    assert not (results / "never_made").exists()
     with pytest.raises(SystemExit) as exit_:
         sweep.main(["--values", "0", "1", "1", "--out", str(tmp_path / "repeated")])
     assert exit_.value.code == 2 and "--values repeats 1" in capsys.readouterr().err
