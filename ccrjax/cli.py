@@ -282,11 +282,15 @@ def committed_results_problem(out: str | os.PathLike[str], force: bool,
     results = COMMITTED_RESULTS if results is None else results
     try:
         inside = Path(out).resolve().is_relative_to(results.resolve())
-    except OSError:
+        if not inside:
+            return None
+        with os.scandir(out) as entries:
+            holds = any(entries)
+    except FileNotFoundError:
+        holds = False
+    except (OSError, RuntimeError):  # unreadable, or a symbolic link loop: not our results
         return None
-    if not inside:
-        return None
-    if os.path.isdir(out) and any(os.scandir(out)):
+    if holds:
         return f"--out {out} holds committed results; give --force to add to or replace them"
     return f"--out {out} is inside the committed results ({results}); give --force to write there"
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from ccrjax import cli
 from ccrjax.cli import INTERRUPTED, UsageError
-from ccrjax.run.checkpoint import CheckpointError, Checkpoints
+from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
 from ccrjax.run.folder import (
     EVAL_METRICS,
     METRIC_RANGES,
@@ -90,9 +90,7 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
         raise UsageError(str(error)) from None
     finally:
         checkpoints.close()
-    for step, why in restored.skipped:
-        print(f"checkpoint {step} is unreadable ({why}); moved it aside and used checkpoint "
-              f"{restored.step}", file=sys.stderr)
+    report_skipped(restored)
     state = restored.state
     print(f"evaluating checkpoint {restored.step:,} of {folder.path} on {episodes} fresh "
           f"episodes per seed ...", file=sys.stderr, flush=True)

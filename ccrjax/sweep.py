@@ -33,6 +33,7 @@ from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.search import (
     DEFAULT_VALUES,
+    REFERENCE_TEXT,
     SEARCHED_PARAMETER,
     search_grid,
     search_rows,
@@ -130,15 +131,10 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def reference_text(result: dict[str, Any]) -> str:
-    """What the value 0 is, where the sweep has it: the pessimistic penalty 0 is exactly
-    the plain learner; CCR's lambda 0 leaves the reward alone, but its robots still
-    observe the shared scores."""
+    """What the value 0 is, where the sweep has it (:data:`REFERENCE_TEXT`)."""
     if not any(row["value"] == 0 for row in result["rows"]):
-        return "; no value 0, so no plain reference"
-    if result["variant"] == "pessimistic":
-        return "; penalty 0 is exactly the plain learner"
-    return ("; lambda 0 is the learner without CCR's reward (its robots still observe the "
-            "shared scores)")
+        return "; no value 0, so no reference"
+    return "; " + REFERENCE_TEXT[result["parameter"]]
 
 
 def sweep_table(result: dict[str, Any]) -> str:

@@ -52,7 +52,7 @@ from ccrjax.agents.maac import MAACConfig
 from ccrjax.agents.replay import grow
 from ccrjax.cli import INTERRUPTED, UsageError
 from ccrjax.envs.scenarios import SCENARIOS
-from ccrjax.run.checkpoint import CheckpointError, Checkpoints
+from ccrjax.run.checkpoint import CheckpointError, Checkpoints, holds_buffer, report_skipped
 from ccrjax.run.folder import (
     EVAL_METRICS,
     POINT_METRICS,
@@ -64,7 +64,7 @@ from ccrjax.run.folder import (
     summary_table,
     timestamp,
 )
-from ccrjax.run.policy import export_policy
+from ccrjax.run.policy import POLICY_DIR, POLICY_RECORD, export_policy
 from ccrjax.run.spec import RunSpec
 from ccrjax.training import DEFAULT_BUDGET, TrainConfig, make_train
 from ccrjax.training.program import NonFinite, first_nonfinite
@@ -269,12 +269,12 @@ def open_folder(args: argparse.Namespace) -> tuple[Any, RunSpec, dict | None]:
         check_writable(folder.path)
         if asked > budget:  # the extension is recorded where the run is described
             steps = folder.checkpoint_steps()
-            exact = bool(steps) and (folder.checkpoint_dir / str(steps[-1]) / "buffer").is_dir()
+            exact = bool(steps) and holds_buffer(folder.checkpoint_dir, steps[-1])
             record.setdefault("extensions", []).append(
                 {"from_total_env_steps": budget, "to_total_env_steps": asked,
                  "runs_as_total_env_steps": spec.train.total_env_steps_run,
-                 "replay_buffer": "kept (exact)" if exact else
-                 "none kept: training goes on from an empty buffer",
+                 "replay_buffer": "in the last checkpoint: the extension is exact" if exact
+                 else "none in the last checkpoint: training goes on from an empty buffer",
                  "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
             record["schedule"] = spec.train.schedule()
         return folder, spec, record
@@ -556,13 +556,6 @@ def _prepared(folder: RunFolder, spec: RunSpec, program: Any, checkpoints: Check
     return session
 
 
-def say_skipped(restored: Any) -> None:
-    """Names the unreadable checkpoints that a restore moved aside, and the one it used."""
-    for step, why in restored.skipped:
-        print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
-              f"checkpoint {restored.step}", file=sys.stderr, flush=True)
-
-
 def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax.Array,
             abstract_state: Any, run_fingerprint: str, total_steps: int
             ) -> tuple[Any, list[dict[str, Any]], float]:
@@ -573,7 +566,7 @@ def restore(folder: RunFolder, checkpoints: Checkpoints, program: Any, keys: jax
                                               abstract_state.buffer, run_fingerprint)
     except CheckpointError as error:  # IncompatibleCheckpoint included
         raise UsageError(f"--resume: {error}") from None
-    say_skipped(restored)
+    report_skipped(restored)
     buffer = restored.buffer
     capacity = abstract_state.buffer.reward.shape[1]
     if buffer is not None and buffer.reward.shape[1] < capacity:
@@ -782,19 +775,27 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
 
 
 def finished(folder: RunFolder, spec: RunSpec) -> bool:
-    """Whether the run in ``folder`` has trained all of ``spec``'s budget and written its
-    summary, by the names of its checkpoints (:func:`resume_finished` reads the last one)."""
+    """Whether the run in ``folder`` has trained all of ``spec``'s budget and finished: its
+    last checkpoint (by name; :func:`resume_finished` reads it) at the budget, a summary of
+    that step, and the exported policy, which a run writes last. A run stopped while
+    finishing, or an extension stopped before its summary, is not finished."""
     steps = folder.checkpoint_steps()
-    return (bool(steps) and steps[-1] >= spec.train.total_env_steps_run
-            and (folder.path / "summary.json").exists())
+    total = spec.train.total_env_steps_run
+    if not steps or steps[-1] < total or not (folder.path / POLICY_DIR / POLICY_RECORD).exists():
+        return False
+    try:
+        summary = json.loads((folder.path / "summary.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(summary, dict) and summary.get("env_steps_per_seed") == steps[-1]
 
 
 def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int | None:
-    """``--resume`` of a finished run at its own budget: its last checkpoint is read (without
-    the replay buffer) to check that it belongs to this run and is whole; then nothing is
-    trained or rewritten, and that checkpoint's replay buffer is dropped unless
-    ``keep_buffer``. Returns ``None`` where the last checkpoint was unreadable and moved
-    aside (said): the run then resumes from the one before, as any stopped run does."""
+    """``--resume`` of a finished run at its own budget: its last checkpoint's training state
+    is read (not its replay buffer) to check that it belongs to this run and can be read;
+    then nothing is trained or rewritten, and that checkpoint's replay buffer is dropped
+    unless ``keep_buffer``. Returns ``None`` where the last checkpoint was unreadable and
+    moved aside (said): the run then resumes from the one before, as any stopped run does."""
     program = make_train(spec.train)
     keys = jnp.stack([jax.random.PRNGKey(seed) for seed in spec.seed_list])
     abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
@@ -802,7 +803,7 @@ def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int 
     try:
         restored = checkpoints.restore_latest(abstract_state.replace(buffer=None), None,
                                               fingerprint(spec.to_dict()))
-        say_skipped(restored)
+        report_skipped(restored)
         if restored.step < spec.train.total_env_steps_run:
             return None
         if not keep_buffer:
@@ -811,6 +812,8 @@ def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int 
         raise UsageError(f"--resume: {error}") from None
     finally:
         checkpoints.close()
+    for note in spec.train.schedule()["notes"]:  # e.g. a larger --steps that rounds to it
+        print(f"note: {note}", file=sys.stderr, flush=True)
     print(f"{folder.path} is finished ({spec.train.total_env_steps_run:,} environment steps "
           f"per seed): nothing to train; the folder holds "
           f"{folder_bytes(folder.path) / 2**20:,.1f} MiB. python -m ccrjax.evaluate "

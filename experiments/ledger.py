@@ -31,7 +31,7 @@ from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.config import make_env
 from ccrjax.training.grid import GridRuns, GridTraining
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = cli.COMMITTED_RESULTS  # experiments/results/
 INVOCATIONS = "invocations.json"
 PARTIAL = "partial"  # <out>/partial/<cell>/: the program in training's checkpoint
 CHECKPOINT_MINUTES = 15.0
@@ -177,7 +177,9 @@ def check_out(out: Path, force: bool) -> str | None:
     if out.exists() and not out.is_dir():
         return f"--out {out} is a file, not a folder"
     problem = cli.committed_results_problem(out, force, RESULTS)
-    return problem and f"{problem} (cells made with the same settings are kept)"
+    if problem and out.is_dir():  # it holds results: say what --force keeps
+        return f"{problem} (cells made with the same settings are kept)"
+    return problem
 
 
 def prepare_out(prog: str, out: Path, force: bool) -> None:

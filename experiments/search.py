@@ -8,12 +8,14 @@ Both searches follow one protocol (``docs/protocol.md``, ``experiments/protocol.
 fixed before either ran: the same budget per learner, the same selection seeds (100-102,
 disjoint from the tables' 0-9), six values spanning more than two orders of magnitude,
 and the same selection rule (:mod:`ccrjax.run.selection`): the lowest mean danger among the
-values whose mean success is at most 5 points below the plain learner's, one value for
+values whose mean success is at most 5 points below the reference's (value 0), one value for
 every scenario and learner, as the paper chose one lambda.
 
 For every scenario and learner one vmapped program trains every value x seed, plus
-the value 0 (the plain learner: no penalty; for CCR the reward unchanged) on the same
-seeds, which is the rule's reference. Each finished program's cell is written to
+the value 0 on the same seeds, which is the rule's reference (the penalty 0 is exactly the
+plain learner; CCR's lambda 0 leaves the reward unchanged, its robots still observing the
+shared scores, so the lambda search also reports the rule against the penalty search's
+exact plain runs). Each finished program's cell is written to
 ``<out>/cells/<scenario>-<algo>.json`` (per-seed final metrics and curves, whether the
 plain runs' return plateaued, wall time, device, commit); a re-run skips the cells made
 with the same settings. Then: ``search.json`` (everything, and the selected value),
@@ -52,7 +54,7 @@ from ledger import (
 from ccrjax import cli
 from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.search import search_grid, search_rows, summarise
+from ccrjax.run.search import REFERENCE_NAME, search_grid, search_rows, summarise
 from ccrjax.run.selection import select
 from ccrjax.run.stats import format_mean_ci, plateau
 from ccrjax.training import ALGOS, TrainConfig
@@ -186,8 +188,8 @@ def rows_table(rows: list[dict], parameter: str, chosen: float | None = None) ->
     lines = [f"| {parameter} | danger frequency | success rate | final distance | return |",
              "|---|---|---|---|---|"]
     for row in rows:
-        mark = " (plain)" if row["value"] == 0 else (" **chosen**" if row["value"] == chosen
-                                                       else "")
+        mark = (f" ({REFERENCE_NAME[parameter]})" if row["value"] == 0 else
+                " **chosen**" if row["value"] == chosen else "")
         lines.append(f"| {row['value']:g}{mark} | {_cell_text(row['danger_frequency'], True)} | "
                      f"{_cell_text(row['success_rate'], True)} | "
                      f"{_cell_text(row['target_distance'], False)} | "
@@ -247,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="ccr (lambda) or pessimistic (penalty)")
     parser.add_argument("--values", type=cli.float_in(0.0, low_open=True), nargs="+",
                         default=None, help="searched values, > 0 (default: the protocol's six "
-                        "of the variant); 0, the plain learner, is always trained beside them")
+                        "of the variant); 0, the rule's reference, is always trained beside them")
     parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=None,
                         help="seeds per value, at least 2 (default: "
                         f"{len(protocol.SELECTION_SEEDS)}, the selection seeds from 100)")

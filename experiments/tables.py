@@ -848,6 +848,7 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError(problem)
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
+
         def validated(settings: Settings) -> Settings:
             for job in jobs_of(settings):  # every configuration validated before compiling
                 for variant in job.variants:

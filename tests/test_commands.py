@@ -60,7 +60,7 @@ def finished_run(tmp_path_factory):
     return out
 
 
-def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys):
+def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys, monkeypatch):
     """``python -m ccrjax.evaluate``'s per-seed numbers are the greedy policy's episode metrics
     computed here from the checkpoint, with the command's documented episode keys."""
     out = tmp_path / "evaluated"
@@ -68,10 +68,24 @@ def test_evaluate_reproduces_the_library_numbers(finished_run, tmp_path, capsys)
     for name in ("config.json", "checkpoints"):
         source = finished_run / name
         (os.symlink if source.is_dir() else os.link)(source, out / name)
+    picture_keys = []
+    original_record = evaluate.record_trained_episode
+
+    def record(program, state, key, caption):
+        picture_keys.append(np.asarray(jax.random.key_data(key)))
+        return original_record(program, state, key, caption=caption)
+
+    monkeypatch.setattr(evaluate, "record_trained_episode", record)
     assert evaluate.main([str(out), "--episodes", "6", "--seed", "5"]) == 0
     capsys.readouterr()
-    # The picture's episode comes from --seed: not the one training drew.
-    assert (out / "episode.png").read_bytes() != (finished_run / "episode.png").read_bytes()
+    # The picture's episode comes from --seed (a stream of its own): not training's.
+    expected_key = jax.random.fold_in(jax.random.fold_in(
+        jax.random.PRNGKey(5), evaluate.EVALUATION_STREAM), evaluate.PICTURE_KEY)
+    training_key = jax.random.fold_in(jax.random.PRNGKey(7), evaluate.PICTURE_KEY)
+    assert len(picture_keys) == 1
+    np.testing.assert_array_equal(picture_keys[0], jax.random.key_data(expected_key))
+    assert not np.array_equal(picture_keys[0], jax.random.key_data(training_key))
+    assert (out / "episode.png").exists()
     result = json.loads((out / "evaluation.json").read_text())
     spec, restored = restore_final(finished_run)
     assert result["checkpoint_env_steps"] == restored.step == 400
@@ -244,7 +258,8 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
     refused(results / "never_made", "inside the committed results", "--force")
     assert not (results / "never_made").exists()
     with pytest.raises(SystemExit) as exit_:
-        sweep.main(["--values", "0", "1", "1", "--out", str(tmp_path / "repeated")])
+        sweep.main(["--values", "0", "1", "1", "--steps", "800", "--learning-starts", "400",
+                    "--out", str(tmp_path / "repeated")])
     assert exit_.value.code == 2 and "--values repeats 1" in capsys.readouterr().err
     assert not (tmp_path / "repeated").exists()
     assert sweep.DEFAULT_VALUES == {v: values for v, (_, values) in protocol.SEARCHED.items()}

@@ -535,8 +535,10 @@ def test_the_exported_policy_acts_as_the_trained_learner(finished_run, tmp_path)
     assert not np.allclose(np.asarray(first), np.asarray(second))
     size = sum(f.stat().st_size for f in (copy / "policy").rglob("*") if f.is_file())
     assert size < 1_000_000  # small: networks only, no replay buffer
+    first_act = ccrjax.load_policy(copy, seed=spec.seed_list[0])
+    np.testing.assert_allclose(np.asarray(jax.vmap(first_act)(obs)), np.asarray(first),
+                               rtol=1e-5, atol=1e-6)  # one team at a time, under vmap
     with pytest.raises(ValueError, match=r"obs must be \[batch, "):
-        first_act = ccrjax.load_policy(copy, seed=spec.seed_list[0])
         first_act(obs[..., :-1])  # one feature short
     with pytest.raises(ValueError, match="seed must be one of"):
         ccrjax.load_policy(copy, seed=99)
@@ -603,7 +605,7 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
     assert record["run"]["train"]["total_env_steps"] == longer
     assert record["extensions"][0]["from_total_env_steps"] == FINAL_STEPS
     assert record["extensions"][0]["runs_as_total_env_steps"] == longer
-    assert record["extensions"][0]["replay_buffer"] == "kept (exact)"
+    assert record["extensions"][0]["replay_buffer"].startswith("in the last checkpoint")
     fresh = tmp_path / "fresh"
     tiny = [str(a) for a in TINY]
     tiny[tiny.index("--steps") + 1] = str(longer)
@@ -619,3 +621,20 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
         {k: v for k, v in r.items() if k != "wall_time_s"} for r in rows_b]
     status, _, err = run_main(train, ["--out", extended, "--resume", "--steps", 1000], capsys)
     assert_usage_error(status, err, "extended, not shortened")
+
+
+def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished_run, tmp_path):
+    """A run stopped while finishing (no exported policy yet), or an extension stopped
+    before its summary (the summary of the shorter run), resumes instead of being taken
+    for finished."""
+    out = tmp_path / "finishing"
+    shutil.copytree(finished_run, out)
+    folder = RunFolder(out)
+    spec = train.RunSpec.from_dict(folder.read_config()["run"])
+    assert train.finished(folder, spec)
+    summary = json.loads((out / "summary.json").read_text())
+    (out / "summary.json").write_text(json.dumps({**summary, "env_steps_per_seed": 200}))
+    assert not train.finished(folder, spec)
+    (out / "summary.json").write_text(json.dumps(summary))
+    (out / "policy" / "policy.json").unlink()
+    assert not train.finished(folder, spec)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import shutil
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -82,6 +83,19 @@ def _as_like(saved: Any, abstract: Any) -> Any:
     return type(abstract)(**{name: jax.numpy.asarray(saved[name]) for name in fields})
 
 
+def report_skipped(restored: Restored) -> None:
+    """Names, on stderr, the unreadable checkpoints a restore moved aside and the one it used."""
+    for step, why in restored.skipped:
+        print(f"checkpoint {step} is unreadable ({why}); moved it aside and fell back to "
+              f"checkpoint {restored.step}", file=sys.stderr, flush=True)
+
+
+def holds_buffer(directory: Path, step: int) -> bool:
+    """Whether checkpoint ``step`` in ``directory`` kept its replay buffer (only the latest
+    of a run in progress, or a finished run's kept with ``--keep-buffer``, does)."""
+    return (Path(directory) / str(step) / "buffer").is_dir()
+
+
 class Checkpoints:
     """The checkpoints of one run folder (``<run>/checkpoints/<step>``)."""
 
@@ -120,7 +134,7 @@ class Checkpoints:
         )
 
     def has_buffer(self, step: int) -> bool:
-        return (self.directory / str(step) / "buffer").is_dir()
+        return holds_buffer(self.directory, step)
 
     def drop_buffer(self, step: int) -> int:
         """Deletes checkpoint ``step``'s replay buffer; returns the bytes freed."""

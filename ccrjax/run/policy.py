@@ -55,10 +55,11 @@ def export_policy(run_folder: str | Path, program: TrainProgram, learner_state: 
 
 
 def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], jax.Array]:
-    """The deterministic policy of ``seed`` trained in ``run_folder``: a jitted function
-    from observations ``float32[batch, N, F]`` to actions (``float32[batch, N, 2]`` in
-    [-1, 1], or ``int32[batch, N]`` for MAAC's discrete actions, indices into its
-    ``MAACConfig.action_set``).
+    """The deterministic policy of ``seed`` trained in ``run_folder``: a function (jitted
+    inside) from observations ``float32[batch, N, F]`` to actions (``float32[batch, N, 2]``
+    in [-1, 1], or ``int32[batch, N]`` for MAAC's discrete actions, indices into its
+    ``MAACConfig.action_set``); one team's ``[N, F]`` gives ``[N, 2]`` (or ``[N]``), so it
+    can be used under ``jax.vmap`` and ``jax.jit``.
 
     Raises ``FileNotFoundError`` if the run exported no policy (it is written when a run
     finishes) and ``ValueError`` for a seed the run did not train; the function raises
@@ -92,9 +93,12 @@ def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], 
 
     def act(obs: jax.Array) -> jax.Array:
         shape = tuple(jnp.shape(obs))
-        if len(shape) != 3 or shape[1:] != expected:
-            raise ValueError(f"obs must be [batch, {expected[0]}, {expected[1]}] (batch, robots, "
-                             f"features; policy.json's num_robots and obs_size), got {shape}")
+        if shape[-2:] != expected or len(shape) not in (2, 3):
+            raise ValueError(f"obs must be [batch, {expected[0]}, {expected[1]}] or "
+                             f"[{expected[0]}, {expected[1]}] (robots, features: policy.json's "
+                             f"num_robots and obs_size), got {shape}")
+        if len(shape) == 2:  # one team (e.g. under jax.vmap)
+            return greedy(obs[None])[0]
         return greedy(obs)
 
     return act

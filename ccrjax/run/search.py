@@ -23,6 +23,14 @@ from ccrjax.training.grid import GridRuns
 SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty"}
 DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
                   "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)}
+# What the value 0 of each searched parameter is (the selection rule's reference): the
+# penalty 0 is exactly the plain learner; CCR's lambda 0 leaves the reward unchanged, but
+# its robots still observe the shared scores. A short name for tables and legends, and a
+# sentence for captions.
+REFERENCE_NAME = {"penalty": "plain", "lam": "no CCR reward"}
+REFERENCE_TEXT = {"penalty": "penalty 0 is exactly the plain learner",
+                  "lam": "lambda 0 is the learner without CCR's reward (its robots still "
+                         "observe the shared scores)"}
 
 
 def summarise(values: np.ndarray, metric: str) -> dict[str, Any]:

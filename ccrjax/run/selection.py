@@ -6,8 +6,9 @@ lambda. The rule is the same for both searches and is written down in
 ``docs/protocol.md``:
 
 1. For every candidate value ``v`` and every scenario x learner pair ``k``, average
-   each metric over the selection seeds: ``m_k(v)``; the reference is the plain learner
-   on the same seeds and budget, ``m_k(ref)``.
+   each metric over the selection seeds: ``m_k(v)``; the reference is the value 0 on the
+   same seeds and budget, ``m_k(ref)`` (the plain learner for the penalty; for CCR's
+   lambda, the learner without CCR's reward).
 2. ``v`` is *eligible* if its constraint metric (success rate), averaged over the pairs,
    is at most ``tolerance`` below the reference's:
    ``mean_k c_k(v) >= mean_k c_k(ref) - tolerance``.
@@ -49,7 +50,7 @@ class SelectionRule:
 
     def describe(self) -> str:
         return (f"the lowest mean {self.objective} among the values whose mean {self.constraint} "
-                f"is at most {self.tolerance:g} below the plain learner's (means over seeds, "
+                f"is at most {self.tolerance:g} below the reference's, value 0 (means over seeds, "
                 "then over scenario x learner pairs; ties to the smaller value)")
 
 

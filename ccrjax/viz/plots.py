@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
 from ccrjax.run.folder import METRIC_RANGES, METRIC_TITLES, replacing
+from ccrjax.run.search import REFERENCE_NAME
 from ccrjax.run.stats import mean_ci_along
 
 PALETTE = ("#1f6fd1", "#d1495b", "#2a9d8f", "#e9a03b", "#6a4c93", "#8c8c8c")
@@ -158,11 +159,6 @@ def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
 PARAMETER_SYMBOLS = {"lam": "λ", "penalty": "penalty"}
 
 
-# What the value 0 of a searched parameter is: the penalty 0 is exactly the plain learner;
-# CCR's lambda 0 leaves the reward unchanged while its robots still observe the shared scores.
-ZERO_NAMES = {"penalty": " (plain)", "lam": " (no CCR reward)"}
-
-
 def _interval(stats: dict) -> tuple[float, float]:
     """The distances from the mean to the (clipped) ends of a ``mean_ci`` summary."""
     if stats.get("ci_low") is None:
@@ -191,8 +187,8 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
         ax = fig.add_subplot(rows, columns, index + 1)
         for row in panels[title]:
             success, danger = row["success_rate"], row["danger_frequency"]
-            label = f"{symbol} = {row['value']:g}" + (ZERO_NAMES.get(parameter, " (reference)")
-                                                      if row["value"] == 0 else "")
+            label = f"{symbol} = {row['value']:g}" + (
+                f" ({REFERENCE_NAME.get(parameter, 'reference')})" if row["value"] == 0 else "")
             ax.errorbar(success["mean"], danger["mean"],
                         xerr=np.array(_interval(success))[:, None],
                         yerr=np.array(_interval(danger))[:, None],
