@@ -218,8 +218,8 @@ def search_markdown(result: dict) -> str:
         (f"**Chosen: {parameter} = {chosen['value']:g}**" if chosen.get("protocol") else
          f"**Provisional, not the protocol's choice ({chosen.get('provisional_because')}): "
          f"{parameter} = {chosen['value']:g}**")
-        + (" (no value met the rule: the one closest to plain's success)"
-           if chosen["fallback"] else "") + ".",
+        + (f" (no value met the rule: the one closest to the success of {parameter} 0, "
+           f"{REFERENCE_NAME[parameter]})" if chosen["fallback"] else "") + ".",
         *(["", f"The same rule with the penalty search's value-0 runs (exactly plain, the same "
            f"seeds, pairs and budgets) as the reference instead of lambda 0 (whose robots "
            f"observe the shared scores): {parameter} = "
@@ -235,7 +235,8 @@ def search_markdown(result: dict) -> str:
         flag = pair["plain_return_plateau"].get("plateaued")
         lines += [f"## {pair['scenario']}, {LEARNER_NAMES[pair['algo']]}",
                   "",
-                  f"Plain return plateaued at this budget: {flag}; program: "
+                  f"Return of {parameter} 0 ({REFERENCE_NAME[parameter]}) plateaued at "
+                  f"this budget: {flag}; program: "
                   f"{duration(pair['train_s'])} training, {duration(pair['compile_s'])} "
                   f"compiling on {pair['device']} at `{pair['commit']}`.",
                   "", *rows_table(pair["rows"], parameter, chosen["value"]), ""]

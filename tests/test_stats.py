@@ -163,6 +163,18 @@ def test_a_resample_with_a_zero_base_is_dropped_not_read_as_no_change():
     assert result["resamples_dropped"] / 4000 == pytest.approx(0.9**10, abs=0.03)
 
 
+def test_each_pairs_change_is_kept_so_a_dominating_pair_shows():
+    """Two ordinary pairs (reductions 0.5 and 0.25) and one whose base is near 0 (an
+    increase of 40 times): the average is that pair's; ``per_pair`` shows it, and a zero
+    base appears as ``None``."""
+    pairs = [(np.full(3, 0.1), np.full(3, 0.2)), (np.full(3, 0.3), np.full(3, 0.4)),
+             (np.full(3, 0.041), np.full(3, 0.001)), (np.full(3, 0.1), np.zeros(3))]
+    result = mean_relative_change(pairs, -1, resamples=100)
+    assert result["per_pair"][:3] == pytest.approx([0.5, 0.25, -40.0])
+    assert result["per_pair"][3] is None and result["left_out"] == 1
+    assert result["mean"] == pytest.approx((0.5 + 0.25 - 40.0) / 3)
+
+
 def test_plateau_tells_a_rising_curve_from_a_flat_one():
     steps = np.arange(20, dtype=np.float64)
     noise = np.array([[0.1, -0.1, 0.05, -0.05] * 5, [-0.1, 0.1, -0.05, 0.05] * 5,
@@ -181,6 +193,10 @@ def test_plateau_tells_a_rising_curve_from_a_flat_one():
         plateau(flat[:1])
     with pytest.raises(ValueError, match="points"):
         plateau(flat[:, :1])
+    # A seed that diverged (NaN) leaves the question open: undetermined, not "did not".
+    broken = flat.copy()
+    broken[1, -1] = np.nan
+    assert plateau(broken)["plateaued"] is None
 
 
 def test_rliable_iqm_is_the_mean_of_the_middle_half():

@@ -81,6 +81,10 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
         if record["variant"] == "ccr":
             assert set(record["danger_frequency"]["welch"]) == {"plain", "pessimistic"}
     assert set(result["headlines"]) == set(tables.PAPER_HEADLINES)
+    assert "Each pair's relative change" in text and "(turbulence)" in text
+    ratio = result["obstacle_distance_ratio_maddpg"]
+    assert len(ratio["by_rank"]) >= 2 and ratio["low"] <= ratio["high"]  # one per robot
+    assert f"{ratio['low']:.2f}x to {ratio['high']:.2f}x" in text
     for metric in ("danger_frequency", "success_rate"):
         aggregate = result["aggregates"][metric]
         assert set(aggregate["iqm"]) == set(tables.VARIANTS)

@@ -142,15 +142,20 @@ def mean_relative_change(pairs: Sequence[tuple[np.ndarray, np.ndarray]], sign: f
     the seeds of every group with replacement (bootstrap, ``resamples`` times) and takes
     the 2.5 and 97.5 percentiles of the average. A resample in which a pair's base mean is
     0 has no relative change: it is dropped (counted in ``resamples_dropped``), not read as
-    "no change", which would pull the interval towards 0.
+    "no change", which would pull the interval towards 0, so the interval is conditional
+    on every base mean staying above 0. ``per_pair`` holds each pair's own
+    ``sign * relative_change`` (``None`` where left out): a base near 0 makes its pair's
+    change large, and the average then follows that one pair.
     """
     rng = np.random.default_rng(seed)
-    used = [(np.asarray(n, np.float64), np.asarray(b, np.float64)) for n, b in pairs
-            if np.isfinite(relative_change(n, b))]
+    changes = [sign * relative_change(n, b) for n, b in pairs]
+    per_pair = [float(c) if np.isfinite(c) else None for c in changes]
+    used = [(np.asarray(n, np.float64), np.asarray(b, np.float64))
+            for (n, b), c in zip(pairs, per_pair, strict=True) if c is not None]
     if not used:
         return {"mean": None, "ci_low": None, "ci_high": None, "pairs": 0,
-                "left_out": len(pairs)}
-    values = [sign * relative_change(n, b) for n, b in used]
+                "left_out": len(pairs), "resamples_dropped": 0, "per_pair": per_pair}
+    values = [c for c in per_pair if c is not None]
     boot = np.zeros(resamples)
     for n, b in used:
         new_means = rng.choice(n, (resamples, n.size), replace=True).mean(axis=1)
@@ -163,7 +168,7 @@ def mean_relative_change(pairs: Sequence[tuple[np.ndarray, np.ndarray]], sign: f
     high = float(np.percentile(kept, 97.5)) if kept.size else None
     return {"mean": float(np.mean(values)), "ci_low": low, "ci_high": high,
             "pairs": len(used), "left_out": len(pairs) - len(used),
-            "resamples_dropped": int(resamples - kept.size)}
+            "resamples_dropped": int(resamples - kept.size), "per_pair": per_pair}
 
 
 def _score_matrix(scores: np.ndarray, what: str) -> np.ndarray:
@@ -227,7 +232,8 @@ def plateau(curves: np.ndarray, fraction: float = 0.2, level: float = 0.95) -> d
     last window lies within the 95% Student-t interval (over seeds) of the window
     before (a curve still rising ends above it). Returns ``{"plateaued", "last",
     "previous", "ci_low", "ci_high", "window"}``, ``window`` the points per window (at
-    least one); needs at least 2 seeds and two windows of points.
+    least one); needs at least 2 seeds and two windows of points. ``plateaued`` is
+    ``None`` (undetermined) where a curve holds a NaN or infinity.
     """
     array = np.asarray(curves, dtype=np.float64)
     if array.ndim != 2 or array.shape[0] < 2:
@@ -241,6 +247,8 @@ def plateau(curves: np.ndarray, fraction: float = 0.2, level: float = 0.95) -> d
     last = array[:, -window:].mean(axis=1)
     previous = mean_ci(array[:, -2 * window:-window].mean(axis=1), level)
     value = float(last.mean())
-    return {"plateaued": bool(previous["ci_low"] <= value <= previous["ci_high"]),
+    finite = all(np.isfinite(x) for x in (value, previous["ci_low"], previous["ci_high"]))
+    return {"plateaued": bool(previous["ci_low"] <= value <= previous["ci_high"])
+            if finite else None,
             "last": value, "previous": previous["mean"], "ci_low": previous["ci_low"],
             "ci_high": previous["ci_high"], "window": window}
