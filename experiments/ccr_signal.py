@@ -16,7 +16,15 @@ the same scenario (``--trained maddpg``), per scenario, this measures:
 * the **share of the intrinsic reward's magnitude** ``sum |R_in|`` that arises within
   ``m`` steps of a robot of the same environment being in danger (any robot of that
   environment in danger at one of the steps ``t - m, ..., t + 1`` of the transition
-  ``t -> t + 1``; ``m`` is CCR's rolling-mean window).
+  ``t -> t + 1``; ``m`` is CCR's rolling-mean window);
+* the **share of dangerous robot-steps that could have been forewarned**: steps of a
+  spell of danger (consecutive dangerous steps of one robot) that began after a teammate
+  within communication range had been in danger earlier in the episode (at least 1 step
+  before, and at least ``m + 1`` steps before: the length of CCR's rolling mean), and how
+  many steps earlier (median over those spells). CCR's reflex can only act on these: a robot
+  whose spell begins with no teammate in danger before it (a leader, or robots entering
+  together) has had no warning to share. An upper bound on what CCR's mechanism can
+  remove under this policy, not a prediction of what it does.
 
 CCR's model is first fitted as in training, where the learners' first ``learning_starts``
 transitions come from uniformly random actions: on ``--warmup`` episodes of random
@@ -164,6 +172,8 @@ def measure(scenario: str, controller: str, episodes: int, warmup: int,
         recent[lag:] |= env_danger[: steps - lag]
     near = np.broadcast_to(recent[:, None, :], reward.shape)
     total = float(reward.sum())
+    forewarned, lead = forewarning(danger, distance, transform.config.comm_range)
+    early = forewarning(danger, distance, transform.config.comm_range, window + 1)[0]
     return {
         "scenario": scenario,
         "policy": controller if trained is None else f"plain {trained}, {train_steps} steps",
@@ -174,7 +184,39 @@ def measure(scenario: str, controller: str, episodes: int, warmup: int,
         "intrinsic_share_near_danger": float(reward[near].sum() / total) if total > 0 else None,
         "intrinsic_share_in_contact": (float(reward[classes["contact"]].sum() / total)
                                        if total > 0 else None),
+        "danger_share_forewarned": (float(forewarned.sum() / danger.sum()) if danger.any()
+                                    else None),
+        "danger_share_forewarned_by_window": (float(early.sum() / danger.sum())
+                                              if danger.any() else None),
+        "forewarning_lead_steps_median": float(np.median(lead)) if lead.size else None,
     }
+
+
+def forewarning(danger: np.ndarray, distance: np.ndarray, comm_range: float,
+                min_lead: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Which dangerous robot-steps a teammate's danger preceded, and by how much.
+
+    ``danger`` ``[T, N, E]`` (bool), ``distance`` ``[T, N, N, E]`` between robots at the
+    same steps (``inf`` on the diagonal). A robot is *warned* at step ``t`` if a teammate
+    within ``comm_range`` is in danger then. A spell of danger (consecutive dangerous steps
+    of one robot) is *forewarned* if the robot was first warned at least ``min_lead`` steps
+    before the spell began. Returns the forewarned dangerous steps ``[T, N, E]`` and, per
+    forewarned spell, its lead: the spell's first step minus the robot's first warned step.
+    """
+    teammate = danger[:, None, :, :] & (distance <= comm_range)  # [T, N(i), N(j), E]
+    warned = teammate.any(axis=2)  # [T, N, E]
+    steps = danger.shape[0]
+    index = np.arange(steps)[:, None, None]
+    first_warned = np.where(warned.any(axis=0), warned.argmax(axis=0), steps)  # [N, E]
+    previous = np.concatenate([np.zeros_like(danger[:1]), danger[:-1]])
+    start = danger & ~previous  # [T, N, E]: a spell's first step
+    start_forewarned = start & (first_warned[None] + min_lead <= index)
+    forewarned = np.zeros_like(danger)
+    for t in range(steps):
+        carried = forewarned[t - 1] & danger[t] if t else np.zeros_like(danger[0])
+        forewarned[t] = start_forewarned[t] | carried
+    lead = (index - first_warned[None])[start_forewarned]
+    return forewarned, lead
 
 
 def _g(value: float | None) -> str:
@@ -188,12 +230,17 @@ def markdown(result: dict[str, Any]) -> str:
         f"{products}Policy `{result['policy']}`, {result['episodes']} episodes per scenario "
         f"after {result['warmup']} episodes of random actions fitting CCR's model; smoothed "
         "emergency score E by the robot's state (median [quartiles], share of robot-steps), "
-        "and the share of the intrinsic reward's magnitude within m steps of a robot of the "
-        "same environment being in danger.",
+        "the share of the intrinsic reward's magnitude within m steps of a robot of the "
+        "same environment being in danger, and the share of dangerous robot-steps that a "
+        "teammate's danger within communication range preceded (spells of danger that "
+        "began at least 1, and at least m + 1 = 5, steps after a teammate in range had "
+        "first been in danger; median lead in 0.1 s steps): the most CCR's reflex could "
+        "act on under this policy.",
         "",
         "| scenario | E in danger | E in contact | E in free motion | "
-        "share of |R_in| near danger | share of |R_in| in contact |",
-        "|---|---|---|---|---|---|",
+        "share of |R_in| near danger | share of |R_in| in contact | "
+        "danger forewarned by 1 / 5 steps (lead) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in result["rows"]:
         cells = []
@@ -203,9 +250,16 @@ def markdown(result: dict[str, Any]) -> str:
             cells.append("none" if s["n"] == 0 else
                          f"{s['median']:.2g} [{s['q25']:.2g}, {s['q75']:.2g}] ({share:.1%})")
         near, contact = row["intrinsic_share_near_danger"], row["intrinsic_share_in_contact"]
+        forewarned = row["danger_share_forewarned"]
+        early = row["danger_share_forewarned_by_window"]
+        lead = row["forewarning_lead_steps_median"]
         lines.append(f"| {row['scenario']} | {' | '.join(cells)} | "
                      f"{'n/a' if near is None else f'{near:.1%}'} | "
-                     f"{'n/a' if contact is None else f'{contact:.1%}'} |")
+                     f"{'n/a' if contact is None else f'{contact:.1%}'} | "
+                     + ("n/a" if forewarned is None else
+                        f"{forewarned:.1%} / {early:.1%} "
+                        f"({'n/a' if lead is None else f'{lead:g}'})")
+                     + " |")
     lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` in "
               f"{result['seconds']:.0f} s."]
     return "\n".join(lines) + "\n"

@@ -431,6 +431,30 @@ def test_tf32_emulation_rounds_the_models_products_and_only_inside(tmp_path):
     assert exact != 3.0
 
 
+def test_forewarning_counts_the_spells_a_teammates_danger_preceded():
+    """Three robots, one episode of 6 steps. Robot 0 leads (danger at 1-2, nobody before
+    it) and is in danger again at 5, after robot 1's spell; robot 1, within range of robot
+    0, is in danger at 3-4, two steps after robot 0's first; robot 2, out of range, at 4.
+    Forewarned: robot 1's two steps and robot 0's step 5, 3 of 6, each led by 2 steps."""
+    signal = load("ccr_signal")
+    danger = np.zeros((6, 3, 1), bool)
+    danger[[1, 2, 5], 0, 0] = True
+    danger[[3, 4], 1, 0] = True
+    danger[4, 2, 0] = True
+    distance = np.full((6, 3, 3, 1), 0.5)
+    distance[:, 2, :, 0] = distance[:, :, 2, 0] = 5.0  # robot 2 out of range of both
+    distance[:, np.arange(3), np.arange(3)] = np.inf
+    forewarned, lead = signal.forewarning(danger, distance, comm_range=1.0)
+    expected = np.zeros_like(danger)
+    expected[[3, 4], 1, 0] = expected[5, 0, 0] = True
+    np.testing.assert_array_equal(forewarned, expected)
+    assert sorted(lead.tolist()) == [2, 2]
+    assert not signal.forewarning(danger, distance, comm_range=0.4)[0].any()  # out of range
+    assert not signal.forewarning(danger, distance, comm_range=1.0, min_lead=3)[0].any()
+    early, lead = signal.forewarning(danger, distance, comm_range=1.0, min_lead=2)
+    np.testing.assert_array_equal(early, expected)
+
+
 def test_a_cell_made_with_other_training_parameters_is_not_current(search, budgets, tables):
     """Each cell stores what its runs were trained with beyond the settings (learner,
     environment, transform); read back, it must equal what the current code would use for
