@@ -73,6 +73,7 @@ TARGET_SHARE = 0.70
 PROG = "python experiments/ccr_signal.py"
 TRAIN_STEPS = 150_000  # --trained's default training budget
 MATMULS = ("float32", "tf32")
+WINDOW = CCR().config.window  # m, as measured (CCR's default configuration)
 
 
 def round_to_tf32(x: jax.Array) -> jax.Array:
@@ -229,13 +230,15 @@ def markdown(result: dict[str, Any]) -> str:
     lines = [
         f"{products}Policy `{result['policy']}`, {result['episodes']} episodes per scenario "
         f"after {result['warmup']} episodes of random actions fitting CCR's model; smoothed "
-        "emergency score E by the robot's state (median [quartiles], share of robot-steps), "
-        "the share of the intrinsic reward's magnitude within m steps of a robot of the "
+        "emergency score E by the robot's state (median [quartiles], share of robot-steps; "
+        "in contact: centres closer than two robot radii plus "
+        f"{CONTACT_SLACK:g}, and not in danger), the share of the intrinsic reward's "
+        f"magnitude within m = {WINDOW} steps (CCR's rolling-mean window) of a robot of the "
         "same environment being in danger, and the share of dangerous robot-steps that a "
         "teammate's danger within communication range preceded (spells of danger that "
-        "began at least 1, and at least m + 1 = 5, steps after a teammate in range had "
-        "first been in danger; median lead in 0.1 s steps): the most CCR's reflex could "
-        "act on under this policy.",
+        f"began at least 1, and at least m + 1 = {WINDOW + 1}, steps after a teammate in "
+        "range had first been in danger; median lead in 0.1 s steps): the most CCR's "
+        "reflex could act on under this policy.",
         "",
         "| scenario | E in danger | E in contact | E in free motion | "
         "share of |R_in| near danger | share of |R_in| in contact | "
