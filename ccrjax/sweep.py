@@ -111,14 +111,18 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     seeds = [args.seed_offset + k for k in range(args.seeds)]
     commit = git_commit()  # the code that trains is the code loaded now
     name, grid_seeds, grid_values = search_grid(config, values, seeds)
+    schedule = config.schedule()
+    for note in schedule["notes"]:  # rounded to whole iterations: said, and recorded
+        print(f"{PROG}: note: {note}", file=sys.stderr, flush=True)
     print(f"{PROG}: {args.algo} + {args.variant} on {args.scenario}: {len(values)} {name} x "
-          f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.budget:,} steps, "
-          "one program", file=sys.stderr, flush=True)
+          f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.total_env_steps_run:,} "
+          "steps, one program", file=sys.stderr, flush=True)
     runs = train_grid(config, grid_seeds, {name: grid_values},
                       log=lambda text: print(text, file=sys.stderr, flush=True))
     result = {
         "variant": args.variant, "parameter": name,
-        "scenario": args.scenario, "algo": args.algo, "env_steps": config.budget,
+        "scenario": args.scenario, "algo": args.algo,
+        "env_steps": config.total_env_steps_run, "schedule": schedule,
         "eval_episodes": args.eval_episodes, "compile_s": runs.compile_s, "run_s": runs.run_s,
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
         "command": " ".join([PROG, *sys.argv[1:]]), "commit": commit,

@@ -96,13 +96,20 @@ def run_config(settings: Settings, scenario: str, algo: str, variant: str,
                **fields: Any) -> TrainConfig:
     """One run's configuration under an experiment's ``settings``: :func:`budget` steps,
     its evaluation interval and episodes, tiny sizes if ``quick``; ``fields`` set the rest
-    (the transform)."""
+    (the transform). A budget or evaluation interval that would be rounded to whole
+    iterations is refused (``ValueError``): an experiment's cells and tables record the
+    budget asked for, so it must be the one that runs."""
     base = TrainConfig(algo=algo, scenario=scenario, variant=variant)
     if settings.quick:
         base = quick(base)
-    return dataclasses.replace(base, total_env_steps=budget(algo, settings.steps),
-                               eval_every=settings.eval_every,
-                               eval_episodes=settings.eval_episodes, **fields)
+    config = dataclasses.replace(base, total_env_steps=budget(algo, settings.steps),
+                                 eval_every=settings.eval_every,
+                                 eval_episodes=settings.eval_episodes, **fields)
+    notes = config.schedule()["notes"]
+    if notes:
+        raise ValueError("; ".join(notes) + " (an experiment runs exactly what it records: "
+                         "give whole evaluation intervals)")
+    return config
 
 
 def quick(config: TrainConfig) -> TrainConfig:

@@ -286,7 +286,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
     problem = protocol.seed_overlap(fields["seeds"], args.seed_offset,
                                     ("the tables'", "the budgets'"))
-    if problem and not args.quick:
+    if problem:  # --quick too, as the tables and the budgets refuse
         raise cli.UsageError(problem)
     return Settings(**fields)
 

@@ -172,8 +172,10 @@ def run_command(module: str, *args: str, env) -> subprocess.CompletedProcess:
 
 
 def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
-    """Two penalties x two seeds of MADDPG for two iterations each, learning from the
-    second; and the refusal of a budget that ends before learning starts."""
+    """Two penalties x two seeds of MADDPG, learning once 400 transitions are held (a
+    budget of 900 steps and evaluations every 90, rounded to whole iterations of 200
+    environment steps: 1,000 and 200, said and recorded); and the refusal of a budget that
+    ends before learning starts."""
     out = tmp_path / "sweep"
     refused = subprocess.run(
         [sys.executable, "-m", "ccrjax.sweep", "--steps", "800", "--out", str(out)],
@@ -181,14 +183,17 @@ def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
     assert "(--steps) 800 ends before learning starts" in refused.stderr
     assert not out.exists()
-    run_command("ccrjax.sweep", "--variant", "pessimistic", "--scenario", "strong_wind",
-                "--algo", "maddpg", "--values", "0", "30", "--seeds", "2", "--steps", "800",
-                "--learning-starts", "400", "--eval-episodes", "4", "--out", str(out),
-                env=subprocess_env)
+    process = run_command(
+        "ccrjax.sweep", "--variant", "pessimistic", "--scenario", "strong_wind", "--algo",
+        "maddpg", "--values", "0", "30", "--seeds", "2", "--steps", "900",
+        "--learning-starts", "400", "--eval-episodes", "4", "--out", str(out),
+        env=subprocess_env)
+    assert "note: --steps 900 runs as 1,000" in process.stderr
     result = json.loads((out / "sweep.json").read_text())
     assert result["parameter"] == "penalty"
     assert [row["value"] for row in result["rows"]] == [0.0, 30.0]
-    assert result["env_steps"] == 800 and result["eval_episodes"] == 4
+    assert result["env_steps"] == 1000 and result["eval_episodes"] == 4
+    assert result["schedule"]["requested"]["total_env_steps"] == 900
     for row in result["rows"]:
         assert row["seeds"] == [100, 101]  # the selection seeds by default
         for name in (*EVAL_METRICS, "cumulative_danger_steps"):

@@ -65,7 +65,9 @@ def refused(module, argv, capsys, *fragments):
     (["--variant", "ccr", "--values", "0"], ("--values",)),
     (["--variant", "ccr", "--seed-offset", "5"], ("overlaps the tables' seeds",)),
     (["--variant", "ccr", "--seed-offset", "200"], ("overlaps the budgets' seeds",)),
+    (["--variant", "ccr", "--quick", "--seed-offset", "8"], ("overlaps the tables' seeds",)),
     (["--variant", "ccr", "--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
+    (["--variant", "ccr", "--steps", "130000"], ("--steps 130,000 runs as 200,000",)),
 ])
 def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -80,6 +82,7 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     (["--seed-offset", "0"], ("--seed-offset 0", "tables' seeds 0-9")),
     (["--seed-offset", "99"], ("selection seeds 100-102",)),
     (["--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
+    (["--steps", "250001"], ("--steps 250,001 runs as 300,000", "whole evaluation")),
     (["--candidate-every", "0"], ("--candidate-every",)),
     (["--candidate-every", "4000000"], ("above the budget 3,000,000 of iddpg",)),
 ])
