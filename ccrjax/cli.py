@@ -65,6 +65,18 @@ class Parser(argparse.ArgumentParser):
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
 
 
+def run_stoppable(prog: str, main: Callable[[], int], kept: str) -> int:
+    """``main()``, with Ctrl-C and SIGTERM ending it through one line saying what was
+    ``kept`` and status 130 (:data:`INTERRUPTED`), not a traceback: the experiments'
+    entry point."""
+    try:
+        with sigterm_as_interrupt():
+            return main()
+    except KeyboardInterrupt:
+        print(f"{prog}: stopped; {kept}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """Within the block SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, so a command

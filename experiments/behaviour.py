@@ -55,6 +55,8 @@ from ccrjax.viz.plots import draw_obstacle_distances
 EXPLORATION_SEEDS = 300  # first seed: apart from every seed set of docs/protocol.md
 
 
+PROG = "python experiments/behaviour.py"
+
 def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach: float,
                       lam: float, log) -> dict:
     results = {}
@@ -116,7 +118,7 @@ def draw_figure(result: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = cli.Parser(prog="python experiments/behaviour.py",
+    parser = cli.Parser(prog=PROG,
                         description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
                         help="seeds per variant, at least 2 (default: 3)")
@@ -174,4 +176,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cli.run_stoppable(
+        PROG, main,
+        "nothing was written (the results are written when the measurement ends)"))

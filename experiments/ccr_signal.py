@@ -327,4 +327,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(cli.run_stoppable(
+        PROG, main,
+        "nothing was written (the results are written when the measurement ends)"))

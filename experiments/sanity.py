@@ -22,6 +22,7 @@ import jax
 from ccrjax import cli
 from ccrjax.training import ALGOS, TrainConfig, make_train
 
+PROG = "python experiments/sanity.py"
 
 def sanity_config(algo: str, steps: int | None, eval_episodes: int) -> TrainConfig:
     """The default configuration of ``algo`` on ``nominal``, ``steps`` if given, evaluated
@@ -55,7 +56,7 @@ def run(algo: str, seed: int, steps: int | None, eval_episodes: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = cli.Parser(prog="python experiments/sanity.py",
+    parser = cli.Parser(prog=PROG,
                         description=__doc__.split("\n")[0])
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners to train, one seed each (default: all three)")
@@ -95,4 +96,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cli.run_stoppable(
+        PROG, main,
+        "nothing to keep (it prints its results as they come)"))

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    STOPPED_KEPT,
     Partial,
     add_checkpoint_option,
     add_out_options,
@@ -348,4 +349,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cli.run_stoppable(PROG, main, STOPPED_KEPT))

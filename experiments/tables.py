@@ -69,6 +69,7 @@ import numpy as np
 import protocol
 from ledger import (
     RESULTS,
+    STOPPED_KEPT,
     Ledger,
     Partial,
     Progress,
@@ -937,4 +938,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cli.run_stoppable(PROG, main, STOPPED_KEPT))

@@ -9,6 +9,8 @@ import importlib
 import importlib.util
 import json
 import re
+import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -513,3 +515,27 @@ def test_help_is_plain_text_with_every_option_explained(name):
         assert action.help, f"{name}: {action.option_strings or action.dest} has no help"
     assert "``" not in text and not re.search(r":[a-z]+:`", text), text
     assert str(EXPERIMENTS.parent) not in text, text
+
+
+def test_an_experiment_stopped_by_ctrl_c_says_what_it_kept_in_one_line(tmp_path,
+                                                                        subprocess_env):
+    """Ctrl-C once the program is planned (compiling or training): status 130 and one line
+    saying what was kept, no traceback; the invocation is recorded as stopped."""
+    out = tmp_path / "search"
+    process = subprocess.Popen(
+        [sys.executable, str(EXPERIMENTS / "search.py"), "--variant", "pessimistic", "--quick",
+         "--scenarios", "turbulence", "--algos", "iddpg", "--out", str(out)],
+        stderr=subprocess.PIPE, text=True, env=subprocess_env)
+    seen = []
+    for line in process.stderr:
+        seen.append(line)
+        if "to train" in line:
+            break
+    process.send_signal(signal.SIGINT)
+    rest = process.communicate(timeout=120)[1]
+    assert process.returncode == 130, "".join(seen) + rest
+    assert "Traceback" not in rest, rest
+    assert rest.strip().splitlines()[-1].startswith(
+        "python experiments/search.py: stopped; the finished programs' cells are kept")
+    invocations = json.loads((out / "invocations.json").read_text())
+    assert invocations["invocations"][-1]["finished"] is False
