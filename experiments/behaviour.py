@@ -91,9 +91,13 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
                                         / row["plain_centre_distance"]["mean"])
         per_rank.append(row)
     followers = {v: followers_closest(analyses[v]) for v in ("plain", "ccr")}
+    def measured_mean(values: np.ndarray) -> float:  # NaN where no seed had such a follower
+        finite = values[np.isfinite(values)]
+        return float(finite.mean()) if finite.size else float("nan")
+
     return {
-        "plain_distance": float(np.nanmean(followers["plain"])),
-        "ccr_distance": float(np.nanmean(followers["ccr"])),
+        "plain_distance": measured_mean(followers["plain"]),
+        "ccr_distance": measured_mean(followers["ccr"]),
         # Seeds with no successful follower have nothing to measure (NaN) and are left out.
         **{f"{v}_distance_ci95": mean_ci(followers[v][np.isfinite(followers[v])]
                                          if np.isfinite(followers[v]).any() else [np.nan])
@@ -164,9 +168,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"followers' closest approach to the obstacle surface (mean over robots 2..N that "
           "succeeded, "
           f"{args.episodes} episodes x {len(seeds)} seeds):")
-    print(f"  MADDPG      {result['plain_distance']:.3f}")
-    print(f"  MADDPG+CCR  {result['ccr_distance']:.3f}")
-    print(f"\n{'rank':>4} {'closest plain':>14} {'closest CCR':>12} {'centre plain':>13} "
+    for name, value in (("MADDPG", result["plain_distance"]),
+                        ("MADDPG+CCR", result["ccr_distance"])):
+        print(f"  {name:<11} " + (f"{value:.3f}" if np.isfinite(value) else
+                                  "none (no follower succeeded)"))
+    print("\nevery robot, successful or not, by arrival rank: closest approach to the surface "
+          "and average distance to the centre (ratio CCR / plain):")
+    print(f"{'rank':>4} {'closest plain':>14} {'closest CCR':>12} {'centre plain':>13} "
           f"{'centre CCR':>11} {'ratio':>6}")
     for row in result["per_rank"]:
         print(f"{row['rank']:4d} {row['plain_closest']['mean']:14.3f} "

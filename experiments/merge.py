@@ -23,6 +23,7 @@ from typing import Any
 
 from ledger import (
     INVOCATIONS,
+    NOT_IN_CELLS,
     cell_is_current,
     check_out,
     read_json,
@@ -66,6 +67,21 @@ def record_key(record: dict[str, Any]) -> tuple:
     return tuple(record.get(k) for k in ("command", "commit", "device", "date"))
 
 
+# How and where a cell was made, not what it holds: two cells that differ only here (the
+# same runs made twice, or read back by a narrower invocation) are the same cell.
+PROVENANCE = ("compile_s", "train_s", "compile_seconds_of_program", "train_seconds_of_program",
+              "date", "device", "commit")
+
+
+def cell_results(path: Path) -> dict[str, Any]:
+    """A cell file's content less :data:`PROVENANCE` and the settings that only say which
+    programs an invocation trained (``ledger.NOT_IN_CELLS``)."""
+    cell = {k: v for k, v in read_json(path).items() if k not in PROVENANCE}
+    if isinstance(cell.get("settings"), dict):
+        cell["settings"] = {k: v for k, v in cell["settings"].items() if k not in NOT_IN_CELLS}
+    return cell
+
+
 def plan(sources: list[Path], into: Path
          ) -> tuple[dict[str, Path], list[str], int, dict[str, Any]]:
     """The cells to copy (name -> source file), the stale cells left out (made with other
@@ -98,7 +114,7 @@ def plan(sources: list[Path], into: Path
             known = copies.get(path.name) or held.get(path.name)
             if known is None:
                 copies[path.name] = path
-            elif known.read_bytes() != path.read_bytes():
+            elif cell_results(known) != cell_results(path):
                 raise cli.UsageError(f"cell {path.name} differs between {known.parent.parent} "
                                      f"and {folder}: keep one of them")
     records = {record_key(r): r for r in (target["invocations"] if target else [])}

@@ -122,6 +122,10 @@ def quick(config: TrainConfig) -> TrainConfig:
                                learner=learner)
 
 
+QUICK_NOTE = ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
+              "hundred steps per run. It checks the pipeline; no number here measures "
+              "learning or the scenarios (the reference controllers run 10-step episodes "
+              "too, and the plateau checks see a handful of evaluations).")
 QUICK_STEPS = 400
 QUICK_EVAL_EVERY = 200
 QUICK_EVAL_EPISODES = 4

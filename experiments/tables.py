@@ -560,6 +560,7 @@ def tables_markdown(result: dict) -> str:
     lines = [
         "# The paper's Tables I and II, re-run with ccrjax",
         "",
+        *([protocol.QUICK_NOTE, ""] if settings.get("quick") else []),
         f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}) at commit(s) "
         f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
         f"training time add up to {duration(result['programs_seconds'])}. Invocations:",
@@ -838,10 +839,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--penalty", type=cli.non_negative_float, default=None,
                         help="the pessimistic penalty (default: the penalty search's choice, "
                         "<searches>/pessimistic/search.json)")
-    parser.add_argument("--searches", type=Path, default=SEARCHES,
+    parser.add_argument("--searches", type=Path, default=None,
                         help="the folder holding both searches' results, ccr/ and "
                         "pessimistic/ (default: the committed ones, experiments/results/search; "
-                        "runs/search after `make sweep` and `make penalty-sweep`)")
+                        "runs/search after `make sweep` and `make penalty-sweep`; with "
+                        "--quick, quick searches' provisional choices, else lambda 30 and "
+                        "penalty 1)")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
                         "tables are written once all 18 programs exist)")
@@ -854,14 +857,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def selected(variant: str, given: float | None, quick: bool, searches: Path = SEARCHES
+def selected(variant: str, given: float | None, quick: bool, searches: Path | None = None
              ) -> tuple[float, str]:
-    """The value of ``variant``'s parameter and where it came from (the search's result in
-    ``searches/<variant>/``, unless given or quick)."""
+    """The value of ``variant``'s parameter and where it came from: given, or the
+    search's result in ``searches/<variant>/`` (default :data:`SEARCHES`), the protocol's
+    choice only; with ``quick``, a fixed value unless ``searches`` names (quick) searches,
+    whose provisional choice it then takes, to check the way from searches to tables."""
     if given is not None:
         return given, "given on the command line"
-    if quick:
+    if quick and searches is None:
         return {"ccr": 30.0, "pessimistic": 1.0}[variant], "the quick mode's fixed value"
+    searches = SEARCHES if searches is None else searches
     path = searches / variant / "search.json"
     search = read_json(path)
     if not search or "selection" not in search:
@@ -870,6 +876,8 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path = SE
                              f"--variant {variant} first, name its folder's parent with "
                              f"--searches, or give {option}")
     chosen = search["selection"]
+    if quick:
+        return float(chosen["value"]), f"the provisional choice of the search in {path.parent}"
     if not chosen.get("protocol"):
         option = "--lam" if variant == "ccr" else "--penalty"
         why = chosen.get("provisional_because") or "made before selections said so"

@@ -172,8 +172,12 @@ def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, 
                           {"turbulence-iddpg.json": "A"})
     one = results_folder(tmp_path / "one", wider, [record("b", 5.0)],
                          {"strong_wind-iddpg.json": "B"})
-    copied = "turbulence-iddpg.json"  # a cell the folder started from
-    (one / "cells" / copied).write_text((into / "cells" / copied).read_text())
+    copied = "turbulence-iddpg.json"  # a cell the folder started from, read back by a
+    # wider invocation elsewhere: other timings and programs trained, the same results
+    cell = json.loads((into / "cells" / copied).read_text())
+    (one / "cells" / copied).write_text(json.dumps({
+        **cell, "train_s": 9.0, "date": "later", "device": "gpu",
+        "settings": {**cell["settings"], "scenarios": ["turbulence", "strong_wind"]}}))
     two = results_folder(tmp_path / "two", settings, [record("a"), record("b", 2.0),
                                                       record("c")],
                          {"nominal-iddpg.json": "C"})
@@ -303,6 +307,12 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
             "not the protocol's choice", str(searches / "ccr"))
     assert tables.selected("pessimistic", None, False, searches) == (
         3.0, f"selected by the search in {searches / 'pessimistic'}")
+    # --quick takes named (quick) searches' provisional choices, else its fixed values.
+    assert tables.selected("ccr", None, True, searches) == (
+        3.0, f"the provisional choice of the search in {searches / 'ccr'}")
+    assert tables.selected("ccr", None, True) == (30.0, "the quick mode's fixed value")
+    refused(tables, ["--quick", "--searches", str(tmp_path / "none"), "--out",
+                     str(tmp_path / "never")], capsys, "no ccr search result")
 
 
 def test_merge_keeps_two_invocations_started_in_the_same_minute(merge, tmp_path):

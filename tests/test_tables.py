@@ -82,6 +82,7 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
             assert set(record["danger_frequency"]["welch"]) == {"plain", "pessimistic"}
     assert set(result["headlines"]) == set(tables.PAPER_HEADLINES)
     assert "Each pair's relative change" in text and "(turbulence)" in text
+    assert text.count("**Quick mode**") == 1
     ratio = result["obstacle_distance_ratio_maddpg"]
     assert len(ratio["by_rank"]) >= 2 and ratio["low"] <= ratio["high"]  # one per robot
     assert f"{ratio['low']:.2f}x to {ratio['high']:.2f}x" in text
@@ -185,6 +186,7 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert_cells_record_their_training(out)
     for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
+    assert "**Quick mode**" in (out / "search.md").read_text()
     capsys.readouterr()
     assert search.main(argv) == 0
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err

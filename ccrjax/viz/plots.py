@@ -152,7 +152,8 @@ def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
         {"MADDPG": plain, "MADDPG+CCR": ccr}, path,
         xlabel="robot, in order of arrival at the obstacle",
         ylabel="average distance to the obstacle centre",
-        title="hidden obstacle: distance kept from the obstacle (mean, 95% CI over seeds)",
+        title="hidden obstacle: every robot's average distance to the obstacle's centre over "
+              "the episode\n(successful or not, as in the paper's figure; mean, 95% CI over seeds)",
     )
 
 
