@@ -63,7 +63,7 @@ from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import draw_search_tradeoff
 
 PROG = "python experiments/search.py"
-LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+LEARNER_NAMES = protocol.LEARNER_NAMES
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -117,7 +117,7 @@ from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord,
 
 PROG = "python experiments/tables.py"
 VARIANTS = ("plain", "pessimistic", "ccr")
-LEARNER_NAMES = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+LEARNER_NAMES = protocol.LEARNER_NAMES
 VARIANT_SUFFIX = {"plain": "", "pessimistic": " (Pessimistic)", "ccr": "+CCR"}
 SCENARIO_NAMES = {"hidden_obstacle": "hidden obstacle", "turbulence": "turbulence",
                   "strong_wind": "strong wind"}
@@ -581,7 +581,8 @@ def tables_markdown(result: dict) -> str:
         "`↑†`: below / above pessimistic (Welch, p < 0.05, each test alone: 36 of them; a "
         "seed's three variants share their initial parameters and evaluation episodes, "
         "which these unpaired tests ignore: conservative where the variants' results "
-        "correlate); in parentheses the paper's number. Reference rows: hand-written "
+        "correlate); in parentheses the paper's number (IDDPG is the paper's DDPG: one "
+        "DDPG per robot). Reference rows: hand-written "
         f"controllers over {settings['controller_episodes']} episodes (no learning).",
         "",
     ]

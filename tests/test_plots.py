@@ -55,30 +55,38 @@ def test_search_and_progress_figures_render(tmp_path):
     assert is_picture(path)
 
 
-def test_progress_figure_draws_every_seed_and_a_band_within_range(tmp_path, monkeypatch):
-    """Danger near 0 with spread: the band (a polygon) never goes below 0; every seed of
-    every variant has its own faint path."""
-    polygons, lines = [], []
-    fill, plot = Axes.fill, Axes.plot
+def test_progress_figure_draws_every_seed_and_intervals_within_range(tmp_path, monkeypatch):
+    """Danger near 0 with spread: its interval bars never go below 0, the return's never
+    above 0; every seed of every variant has its own faint path."""
+    bars, spans, lines = [], [], []
+    vlines, hlines, plot = Axes.vlines, Axes.hlines, Axes.plot
 
-    def spy_fill(self, x, y, **kwargs):
-        polygons.append(np.asarray(y))
-        return fill(self, x, y, **kwargs)
+    def spy_vlines(self, x, low, high, **kwargs):
+        bars.append((np.asarray(low), np.asarray(high)))
+        return vlines(self, x, low, high, **kwargs)
+
+    def spy_hlines(self, y, low, high, **kwargs):
+        spans.append((np.asarray(low), np.asarray(high)))
+        return hlines(self, y, low, high, **kwargs)
 
     def spy_plot(self, *args, **kwargs):
         lines.append(kwargs.get("alpha"))
         return plot(self, *args, **kwargs)
 
-    monkeypatch.setattr(Axes, "fill", spy_fill)
+    monkeypatch.setattr(Axes, "vlines", spy_vlines)
+    monkeypatch.setattr(Axes, "hlines", spy_hlines)
     monkeypatch.setattr(Axes, "plot", spy_plot)
     rng = np.random.default_rng(0)
-    returns = -40 + np.cumsum(rng.random((3, 6)), axis=1)
+    returns = np.minimum(-6 + 2 * np.cumsum(rng.random((3, 6)), axis=1), -0.01)  # near 0
     danger = np.array([[0.0, 0.2, 0.0, 0.0, 0.3, 0.0]] * 2 + [[0.3, 0.0, 0.2, 0.0, 0.0, 0.1]])
     path = tmp_path / "progress.png"
     plots.draw_progress_matched({"MADDPG": {"plain": (returns, danger),
                                             "ccr": (returns, danger / 2)}}, path, title="t")
     assert is_picture(path)
-    assert len(polygons) == 2
-    for y in polygons:
-        assert y.min() >= 0.0 and y.max() <= 1.0
+    assert len(bars) == len(spans) == 2
+    for low, high in bars:
+        assert low.min() >= 0.0 and high.max() <= 1.0 and (low <= high).all()
+        assert low.min() == 0.0  # clipped: the spread would take it below 0
+    for low, high in spans:
+        assert high.max() <= 0.0 and (low <= high).all()
     assert lines.count(0.25) == 2 * 3  # a faint path per seed and variant

@@ -50,7 +50,7 @@ def test_the_paper_headlines_follow_from_its_tables(tables):
         assert np.mean(result["per_pair"]) == pytest.approx(result["mean"], rel=1e-12)
     # Turbulence's success with CCR, pair by pair (Table II: DDPG 97.48% -> 70.34%).
     turbulence = tables.headline(cells, *tables.HEADLINES["success_change_vs_plain_turbulence"])
-    assert turbulence["pair_names"][0] == "turbulence, DDPG"
+    assert turbulence["pair_names"][0] == "turbulence, IDDPG"
     assert turbulence["per_pair"][0] == pytest.approx(70.34 / 97.48 - 1.0, rel=1e-9)
 
 

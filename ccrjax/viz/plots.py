@@ -221,9 +221,10 @@ def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarr
                           path: str | os.PathLike[str], *, title: str, dpi: int = 120) -> None:
     """Danger against return along training: one panel per title in ``panels``, one line
     per variant through its evaluations (``(returns, danger)``, each ``[seeds, points]``):
-    every seed's path faint, the mean over seeds bold, and a band of danger's 95% interval
-    over seeds (clipped to [0, 1]) around the mean path; the first evaluation is marked by
-    a square, the last by a disc. Reading across at equal return compares the variants at
+    every seed's path faint, the mean over seeds bold, and at every evaluation a cross of
+    the 95% intervals over seeds of danger (vertical, clipped to [0, 1]) and of return
+    (horizontal, clipped to at most 0): bars, not a band, since the mean path may turn back
+    along the return axis; the first evaluation is marked by a square, the last by a disc. Reading across at equal return compares the variants at
     the same stage of learning: a variant that is safer only because it has progressed
     less sits to the left on the baseline's own curve."""
     columns = len(panels)
@@ -235,12 +236,11 @@ def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarr
             colour = VARIANT_COLOURS.get(variant, PALETTE[number % len(PALETTE)])
             for seed_returns, seed_danger in zip(returns, danger, strict=True):
                 ax.plot(seed_returns, seed_danger, color=colour, linewidth=0.5, alpha=0.25)
-            x = np.mean(np.asarray(returns, np.float64), axis=0)
+            x, x_low, x_high = mean_ci_along(returns, axis=0, bounds=METRIC_RANGES["return"])
             y, y_low, y_high = mean_ci_along(danger, axis=0,
                                              bounds=METRIC_RANGES["danger_frequency"])
-            # The band as a polygon: along the mean path out, back along it in reverse.
-            ax.fill(np.concatenate([x, x[::-1]]), np.concatenate([y_low, y_high[::-1]]),
-                    color=colour, alpha=0.18, linewidth=0)
+            ax.vlines(x, y_low, y_high, color=colour, alpha=0.35, linewidth=0.9)
+            ax.hlines(y, x_low, x_high, color=colour, alpha=0.35, linewidth=0.9)
             ax.plot(x, y, color=colour, linewidth=1.6,
                     label=f"{variant} (n={returns.shape[0]} seeds)" if index == 0 else None)
             ax.plot(x[:1], y[:1], marker="s", color=colour, markersize=6)
@@ -254,7 +254,8 @@ def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarr
     handles, labels = fig.axes[0].get_legend_handles_labels()
     fig.suptitle(title, fontsize=11)
     fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=8,
-               frameon=False, title="mean over seeds (bold), each seed (faint), band: 95% CI "
-               "of danger over seeds; ■ first, ● last evaluation", title_fontsize=8)
+               frameon=False, title="mean over seeds (bold), each seed (faint), bars: 95% CI "
+               "over seeds of danger and of return; ■ first, ● last evaluation",
+               title_fontsize=8)
     fig.tight_layout(rect=(0, 0.12, 1, 1))
     save_figure(fig, path)
