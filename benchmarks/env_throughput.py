@@ -31,6 +31,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv, random_actions  # noqa: E402
 from ccrjax.envs.scenarios import SCENARIOS  # noqa: E402
+from ccrjax.run.folder import git_commit  # noqa: E402
 
 DEFAULT_SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 DEFAULT_ENVS = (1024, 4096, 16384)
@@ -173,7 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         device = rows[0]["device"] if rows else ""
         print(f"Full env.step, random continuous actions ({args.sampler} sampler), "
               f"{args.steps} steps per rollout, "
-              f"median of {args.repeats}; {device}, jax {jax.__version__}")
+              f"median of {args.repeats}; {device}, jax {jax.__version__}, commit "
+              f"{git_commit()[:12]}")
         print(format_table(rows))
     return 0
 

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 from ccrjax import cli
 from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.run.folder import git_commit
 from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
@@ -114,7 +115,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.json:
                 print(json.dumps(row), flush=True)
     if not args.json:
-        print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__}")
+        print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__} · "
+              f"commit {git_commit()[:12]}")
+        print(f"one seed, {args.scenario}, default learner settings, learning from the first "
+              "step (the rate of a run after its warm-up)")
         first = args.variants[0]
         header = (
             f"{'learner':8} {'variant':12} {'env steps/s':>12} {'updates/s':>10} "
