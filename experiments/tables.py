@@ -112,7 +112,13 @@ from ccrjax.training.grid import GridRuns, GridTraining
 from ccrjax.transforms import Pessimistic
 from ccrjax.transforms.ccr import CCR, CCRConfig
 from ccrjax.viz.analysis import arrival_analysis, followers_closest
-from ccrjax.viz.plots import Curves, draw_curves, draw_obstacle_distances, draw_progress_matched
+from ccrjax.viz.plots import (
+    VARIANT_COLOURS,
+    Curves,
+    draw_curves,
+    draw_obstacle_distances,
+    draw_progress_matched,
+)
 from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
 
 PROG = "python experiments/tables.py"
@@ -760,7 +766,8 @@ def draw_figures(cells, out: Path) -> list[Path]:
                 cell = cells[(scenario, algo, variant)]
                 steps = np.asarray(cell["history"]["env_steps"][0])
                 curves.add(LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant], steps,
-                           {m: np.asarray(cell["history"][m]) for m in metrics})
+                           {m: np.asarray(cell["history"][m]) for m in metrics},
+                           colour=VARIANT_COLOURS[variant])  # as in the progress figures
             path = out / f"curves_{scenario}_{algo}.png"
             draw_curves(curves, path, metrics=metrics,
                         title=f"{SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}: plain, "

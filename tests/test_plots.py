@@ -23,12 +23,14 @@ def is_picture(path) -> bool:
 
 
 def test_curves_bands_stay_in_range(tmp_path, monkeypatch):
-    """Success rates at 1 with spread: the drawn band never passes 1 (nor below 0)."""
-    bands = []
+    """Success rates at 1 with spread: the drawn band never passes 1 (nor below 0); a
+    series given a colour is drawn in it, the others in the palette's."""
+    bands, colours = [], []
     original = Axes.fill_between
 
     def spy(self, x, low, high, **kwargs):
         bands.append((np.asarray(low), np.asarray(high)))
+        colours.append(kwargs.get("color"))
         return original(self, x, low, high, **kwargs)
 
     monkeypatch.setattr(Axes, "fill_between", spy)
@@ -36,12 +38,16 @@ def test_curves_bands_stay_in_range(tmp_path, monkeypatch):
     success = np.array([[0.0, 0.9, 1.0], [0.1, 1.0, 1.0], [0.0, 1.0, 0.98]])
     curves.add("plain", [0, 100_000, 200_000], {"success_rate": success,
                                                 "danger_frequency": 1 - success})
+    curves.add("ccr", [0, 100_000, 200_000], {"success_rate": success / 2,
+                                              "danger_frequency": success / 2},
+               colour=plots.VARIANT_COLOURS["ccr"])
     path = tmp_path / "curves.png"
     plots.draw_curves(curves, path, metrics=("success_rate", "danger_frequency"))
     assert is_picture(path)
-    assert len(bands) == 2
+    assert len(bands) == 4
     for low, high in bands:
         assert low.min() >= 0.0 and high.max() <= 1.0
+    assert colours == [plots.PALETTE[0], plots.VARIANT_COLOURS["ccr"]] * 2
 
 
 def test_search_and_progress_figures_render(tmp_path):

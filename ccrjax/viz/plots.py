@@ -43,12 +43,15 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int | None = Non
 
 
 class Curves:
-    """The runs to draw: ``label -> (env_steps [P], {metric: values [seeds, P]})``."""
+    """The runs to draw: ``label -> (env_steps [P], {metric: values [seeds, P]})``, each
+    in its own colour (given, or the palette's next)."""
 
     def __init__(self) -> None:
         self.series: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
+        self.colours: dict[str, str] = {}
 
-    def add(self, label: str, env_steps: Sequence[int], values: dict[str, np.ndarray]) -> None:
+    def add(self, label: str, env_steps: Sequence[int], values: dict[str, np.ndarray],
+            colour: str | None = None) -> None:
         steps = np.asarray(env_steps)
         for name, array in values.items():
             array = np.asarray(array, dtype=np.float64)
@@ -57,6 +60,8 @@ class Curves:
                     f"curve {label!r}: {name} must be [seeds, {steps.size}], got {array.shape}"
                 )
         self.series[label] = (steps, {k: np.asarray(v, np.float64) for k, v in values.items()})
+        if colour is not None:
+            self.colours[label] = colour
 
 
 def curves_from_rows(rows: Sequence[dict], metrics: Sequence[str] = CURVE_METRICS):
@@ -84,7 +89,7 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
         for colour_index, (label, (steps, values)) in enumerate(curves.series.items()):
             if metric not in values:
                 continue
-            colour = PALETTE[colour_index % len(PALETTE)]
+            colour = curves.colours.get(label, PALETTE[colour_index % len(PALETTE)])
             per_seed = values[metric]
             bounds = METRIC_RANGES.get(metric, (-np.inf, np.inf))
             mean, low, high = mean_ci_along(per_seed, axis=0, bounds=bounds)
@@ -224,9 +229,10 @@ def draw_progress_matched(panels: dict[str, dict[str, tuple[np.ndarray, np.ndarr
     every seed's path faint, the mean over seeds bold, and at every evaluation a cross of
     the 95% intervals over seeds of danger (vertical, clipped to [0, 1]) and of return
     (horizontal, clipped to at most 0): bars, not a band, since the mean path may turn back
-    along the return axis; the first evaluation is marked by a square, the last by a disc. Reading across at equal return compares the variants at
-    the same stage of learning: a variant that is safer only because it has progressed
-    less sits to the left on the baseline's own curve."""
+    along the return axis; the first evaluation is marked by a square, the last by a disc.
+    Reading across at equal return compares the variants at the same stage of learning: a
+    variant that is safer only because it has progressed less sits to the left on the
+    baseline's own curve."""
     columns = len(panels)
     fig = Figure(figsize=(4.4 * columns, 4.0), dpi=dpi)
     FigureCanvasAgg(fig)
