@@ -68,13 +68,17 @@ class Parser(argparse.ArgumentParser):
 def run_stoppable(prog: str, main: Callable[[], int], kept: str) -> int:
     """``main()``, with Ctrl-C and SIGTERM ending it through one line saying what was
     ``kept`` and status 130 (:data:`INTERRUPTED`), not a traceback: the experiments'
-    entry point."""
+    entry point. Ctrl-C is honoured even where the process was started with SIGINT ignored
+    (a test runner's worker, a script's background job), as ``ccrjax.train`` does."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with sigterm_as_interrupt():
             return main()
     except KeyboardInterrupt:
         print(f"{prog}: stopped; {kept}", file=sys.stderr, flush=True)
         return INTERRUPTED
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
