@@ -17,14 +17,13 @@ the same scenario (``--trained maddpg``), per scenario, this measures:
   ``m`` steps of a robot of the same environment being in danger (any robot of that
   environment in danger at one of the steps ``t - m, ..., t + 1`` of the transition
   ``t -> t + 1``; ``m`` is CCR's rolling-mean window);
-* the **share of dangerous robot-steps that could have been forewarned**: steps of a
-  spell of danger (consecutive dangerous steps of one robot) that began after a teammate
-  within communication range had been in danger earlier in the episode (at least 1 step
-  before, and at least ``m + 1`` steps before: the length of CCR's rolling mean), and how
-  many steps earlier (median over those spells). CCR's reflex can only act on these: a robot
-  whose spell begins with no teammate in danger before it (a leader, or robots entering
-  together) has had no warning to share. An upper bound on what CCR's mechanism can
-  remove under this policy, not a prediction of what it does.
+* the **share of dangerous robot-steps that a teammate's danger forewarned**: steps of a
+  spell of danger (consecutive dangerous steps of one robot) that began while the robot,
+  itself safe, had a teammate in danger within communication range, or had had one at most
+  ``m`` steps earlier (:func:`forewarning`), by a lead of at least 1, 2, 3 and 5 steps, and
+  the median lead. It says how much warning the policy measured leaves to CCR's reflex (a
+  follower turning away because a teammate ahead is in trouble), not what CCR does: CCR's
+  reward also acts on robots already in danger, and training with it changes the policy.
 
 CCR's model is first fitted as in training, where the learners' first ``learning_starts``
 transitions come from uniformly random actions: on ``--warmup`` episodes of random
@@ -74,6 +73,7 @@ PROG = "python experiments/ccr_signal.py"
 TRAIN_STEPS = 150_000  # --trained's default training budget
 MATMULS = ("float32", "tf32")
 WINDOW = CCR().config.window  # m, as measured (CCR's default configuration)
+FOREWARNING_LEADS = (1, 2, 3, 5)  # steps of lead whose shares are reported
 
 
 def round_to_tf32(x: jax.Array) -> jax.Array:
@@ -173,8 +173,7 @@ def measure(scenario: str, controller: str, episodes: int, warmup: int,
         recent[lag:] |= env_danger[: steps - lag]
     near = np.broadcast_to(recent[:, None, :], reward.shape)
     total = float(reward.sum())
-    forewarned, lead = forewarning(danger, distance, transform.config.comm_range)
-    early = forewarning(danger, distance, transform.config.comm_range, window + 1)[0]
+    lead = forewarning(danger, distance, transform.config.comm_range, window)
     return {
         "scenario": scenario,
         "policy": controller if trained is None else f"plain {trained}, {train_steps} steps",
@@ -185,39 +184,52 @@ def measure(scenario: str, controller: str, episodes: int, warmup: int,
         "intrinsic_share_near_danger": float(reward[near].sum() / total) if total > 0 else None,
         "intrinsic_share_in_contact": (float(reward[classes["contact"]].sum() / total)
                                        if total > 0 else None),
-        "danger_share_forewarned": (float(forewarned.sum() / danger.sum()) if danger.any()
-                                    else None),
-        "danger_share_forewarned_by_window": (float(early.sum() / danger.sum())
-                                              if danger.any() else None),
-        "forewarning_lead_steps_median": float(np.median(lead)) if lead.size else None,
+        "danger_share_forewarned_by": {
+            str(k): (float(forewarned_steps(danger, lead, k).sum() / danger.sum())
+                     if danger.any() else None) for k in FOREWARNING_LEADS},
+        "forewarning_lead_steps_median": (float(np.median(lead[lead > 0])) if (lead > 0).any()
+                                          else None),
+        "forewarned_spells": int((lead > 0).sum()),
+        "spells": int((danger & ~np.concatenate([np.zeros_like(danger[:1]), danger[:-1]])).sum()),
     }
 
 
-def forewarning(danger: np.ndarray, distance: np.ndarray, comm_range: float,
-                min_lead: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Which dangerous robot-steps a teammate's danger preceded, and by how much.
+def forewarning(danger: np.ndarray, distance: np.ndarray, comm_range: float, window: int
+                ) -> np.ndarray:
+    """How long before each spell of danger its robot had been warned by a teammate.
 
     ``danger`` ``[T, N, E]`` (bool), ``distance`` ``[T, N, N, E]`` between robots at the
-    same steps (``inf`` on the diagonal). A robot is *warned* at step ``t`` if a teammate
-    within ``comm_range`` is in danger then. A spell of danger (consecutive dangerous steps
-    of one robot) is *forewarned* if the robot was first warned at least ``min_lead`` steps
-    before the spell began. Returns the forewarned dangerous steps ``[T, N, E]`` and, per
-    forewarned spell, its lead: the spell's first step minus the robot's first warned step.
+    same steps (``inf`` on the diagonal). A robot is *warned* at step ``t`` if it is not in
+    danger itself and a teammate within ``comm_range`` is. A spell of danger (consecutive
+    dangerous steps of one robot) starting at ``s`` is *forewarned* if the robot's latest
+    streak of warned steps before ``s`` ended at most ``window`` steps before ``s - 1``
+    (a warning still fresh); its *lead* is ``s`` minus that streak's first step. Returns
+    ``[T, N, E]``: the lead at each forewarned spell's first step, 0 elsewhere.
     """
     teammate = danger[:, None, :, :] & (distance <= comm_range)  # [T, N(i), N(j), E]
-    warned = teammate.any(axis=2)  # [T, N, E]
-    steps = danger.shape[0]
-    index = np.arange(steps)[:, None, None]
-    first_warned = np.where(warned.any(axis=0), warned.argmax(axis=0), steps)  # [N, E]
-    previous = np.concatenate([np.zeros_like(danger[:1]), danger[:-1]])
-    start = danger & ~previous  # [T, N, E]: a spell's first step
-    start_forewarned = start & (first_warned[None] + min_lead <= index)
-    forewarned = np.zeros_like(danger)
-    for t in range(steps):
-        carried = forewarned[t - 1] & danger[t] if t else np.zeros_like(danger[0])
-        forewarned[t] = start_forewarned[t] | carried
-    lead = (index - first_warned[None])[start_forewarned]
-    return forewarned, lead
+    warned = teammate.any(axis=2) & ~danger  # [T, N, E]
+    lead = np.zeros(danger.shape, np.int64)
+    onset = np.full(danger.shape[1:], -1)  # first step of the current or latest streak
+    last_end = np.full(danger.shape[1:], -(10**9))  # last warned step so far
+    was_danger = np.zeros(danger.shape[1:], bool)
+    was_warned = np.zeros(danger.shape[1:], bool)
+    for t in range(danger.shape[0]):
+        start = danger[t] & ~was_danger
+        fresh = last_end >= t - 1 - window
+        lead[t] = np.where(start & fresh, t - onset, 0)  # warnings up to t - 1 only
+        onset = np.where(warned[t] & ~was_warned, t, onset)
+        last_end = np.where(warned[t], t, last_end)
+        was_danger, was_warned = danger[t], warned[t]
+    return lead
+
+
+def forewarned_steps(danger: np.ndarray, lead: np.ndarray, min_lead: int) -> np.ndarray:
+    """The dangerous steps ``[T, N, E]`` of the spells whose lead is at least ``min_lead``."""
+    steps = np.zeros_like(danger)
+    for t in range(danger.shape[0]):
+        carried = steps[t - 1] & danger[t] if t else np.zeros_like(danger[0])
+        steps[t] = (lead[t] >= min_lead) & (lead[t] > 0) | carried
+    return steps
 
 
 def _g(value: float | None) -> str:
@@ -235,14 +247,16 @@ def markdown(result: dict[str, Any]) -> str:
         f"{CONTACT_SLACK:g}, and not in danger), the share of the intrinsic reward's "
         f"magnitude within m = {WINDOW} steps (CCR's rolling-mean window) of a robot of the "
         "same environment being in danger, and the share of dangerous robot-steps that a "
-        "teammate's danger within communication range preceded (spells of danger that "
-        f"began at least 1, and at least m + 1 = {WINDOW + 1}, steps after a teammate in "
-        "range had first been in danger; median lead in 0.1 s steps): the most CCR's "
-        "reflex could act on under this policy.",
+        "teammate's danger forewarned (spells of danger that began while the robot, safe, "
+        "had a teammate in danger within communication range, or had had one at most m "
+        "steps before; by a lead of at least "
+        f"{' / '.join(str(k) for k in FOREWARNING_LEADS)} steps of 0.1 s; median lead): how "
+        "much warning this policy leaves to CCR's reflex, not what CCR does.",
         "",
         "| scenario | E in danger | E in contact | E in free motion | "
         "share of |R_in| near danger | share of |R_in| in contact | "
-        "danger forewarned by 1 / 5 steps (lead) |",
+        f"danger forewarned by {' / '.join(str(k) for k in FOREWARNING_LEADS)} steps "
+        "(median lead) |",
         "|---|---|---|---|---|---|---|",
     ]
     for row in result["rows"]:
@@ -253,15 +267,14 @@ def markdown(result: dict[str, Any]) -> str:
             cells.append("none" if s["n"] == 0 else
                          f"{s['median']:.2g} [{s['q25']:.2g}, {s['q75']:.2g}] ({share:.1%})")
         near, contact = row["intrinsic_share_near_danger"], row["intrinsic_share_in_contact"]
-        forewarned = row["danger_share_forewarned"]
-        early = row["danger_share_forewarned_by_window"]
+        shares = row["danger_share_forewarned_by"]
         lead = row["forewarning_lead_steps_median"]
         lines.append(f"| {row['scenario']} | {' | '.join(cells)} | "
                      f"{'n/a' if near is None else f'{near:.1%}'} | "
                      f"{'n/a' if contact is None else f'{contact:.1%}'} | "
-                     + ("n/a" if forewarned is None else
-                        f"{forewarned:.1%} / {early:.1%} "
-                        f"({'n/a' if lead is None else f'{lead:g}'})")
+                     + ("no danger" if shares["1"] is None else
+                        " / ".join(f"{shares[str(k)]:.1%}" for k in FOREWARNING_LEADS)
+                        + f" ({'n/a' if lead is None else f'{lead:g}'})")
                      + " |")
     lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` in "
               f"{result['seconds']:.0f} s."]

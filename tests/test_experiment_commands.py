@@ -448,9 +448,10 @@ def test_tf32_emulation_rounds_the_models_products_and_only_inside(tmp_path):
 
 def test_forewarning_counts_the_spells_a_teammates_danger_preceded():
     """Three robots, one episode of 6 steps. Robot 0 leads (danger at 1-2, nobody before
-    it) and is in danger again at 5, after robot 1's spell; robot 1, within range of robot
-    0, is in danger at 3-4, two steps after robot 0's first; robot 2, out of range, at 4.
-    Forewarned: robot 1's two steps and robot 0's step 5, 3 of 6, each led by 2 steps."""
+    it) and is in danger again at 5, after robot 1's spell at 3-4 (robot 0 safe and warned
+    at 3-4); robot 1, within range of robot 0, is warned at 1-2; robot 2, out of range of
+    both, is in danger at 4. Forewarned: robot 1's two steps and robot 0's step 5, 3 of 6,
+    each led by 2 steps."""
     signal = load("ccr_signal")
     danger = np.zeros((6, 3, 1), bool)
     danger[[1, 2, 5], 0, 0] = True
@@ -459,15 +460,37 @@ def test_forewarning_counts_the_spells_a_teammates_danger_preceded():
     distance = np.full((6, 3, 3, 1), 0.5)
     distance[:, 2, :, 0] = distance[:, :, 2, 0] = 5.0  # robot 2 out of range of both
     distance[:, np.arange(3), np.arange(3)] = np.inf
-    forewarned, lead = signal.forewarning(danger, distance, comm_range=1.0)
+    lead = signal.forewarning(danger, distance, comm_range=1.0, window=4)
+    expected_lead = np.zeros((6, 3, 1), int)
+    expected_lead[3, 1, 0] = expected_lead[5, 0, 0] = 2
+    np.testing.assert_array_equal(lead, expected_lead)
     expected = np.zeros_like(danger)
     expected[[3, 4], 1, 0] = expected[5, 0, 0] = True
-    np.testing.assert_array_equal(forewarned, expected)
-    assert sorted(lead.tolist()) == [2, 2]
-    assert not signal.forewarning(danger, distance, comm_range=0.4)[0].any()  # out of range
-    assert not signal.forewarning(danger, distance, comm_range=1.0, min_lead=3)[0].any()
-    early, lead = signal.forewarning(danger, distance, comm_range=1.0, min_lead=2)
-    np.testing.assert_array_equal(early, expected)
+    np.testing.assert_array_equal(signal.forewarned_steps(danger, lead, 1), expected)
+    np.testing.assert_array_equal(signal.forewarned_steps(danger, lead, 2), expected)
+    assert not signal.forewarned_steps(danger, lead, 3).any()
+    assert not signal.forewarning(danger, distance, comm_range=0.4, window=4).any()
+
+
+def test_a_stale_warning_or_one_while_in_danger_does_not_forewarn():
+    """Two robots in range, 12 steps. Both are in danger at 0-1 (a warning while in danger
+    is none); robot 1 again at 6-7, while robot 0 is safe and so warned; robot 0 again at 9
+    (its warning, 6-7, ended 1 step before 8: fresh within a window of 4, lead 9 - 6 = 3);
+    robot 1 again at 11 (warned at 9, lead 2). With a window of 0 both warnings are stale."""
+    signal = load("ccr_signal")
+    danger = np.zeros((12, 2, 1), bool)
+    danger[[0, 1, 9], 0, 0] = True
+    danger[[0, 1, 6, 7, 11], 1, 0] = True
+    distance = np.full((12, 2, 2, 1), 0.5)
+    distance[:, [0, 1], [0, 1]] = np.inf
+    lead = signal.forewarning(danger, distance, comm_range=1.0, window=4)
+    assert lead[0].sum() == 0  # together at the start: nobody forewarned
+    assert lead[6, 1, 0] == 0  # robot 1 was warned only while in danger itself (0-1)
+    assert lead[9, 0, 0] == 3  # robot 0 warned at 6-7 while safe
+    assert lead[11, 1, 0] == 2  # robot 1 warned at 9 while safe, ended 1 step before 10
+    stale = signal.forewarning(danger, distance, comm_range=1.0, window=0)
+    assert stale[9, 0, 0] == 0  # the warning ended at 7: more than 0 steps before 8
+    assert stale[11, 1, 0] == 0
 
 
 def test_a_cell_made_with_other_training_parameters_is_not_current(search, budgets, tables):
