@@ -66,7 +66,6 @@ ALL_SCENARIOS = (*SCENARIOS, "nominal")
 CANDIDATE_EVERY = 250_000
 QUICK_CANDIDATE_EVERY = 200
 FINAL_METRICS = ("return", "success_rate", "danger_frequency")
-YES_NO = {True: "yes", False: "**no**", None: "too few evaluations"}
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -176,7 +175,8 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     for cell in result["cells"]:
         proposed = cell["proposed_budget"]
         lines.append(
-            f"| {cell['algo']} | {cell['scenario']} | {YES_NO[cell['plateaued_at_budget']]} | "
+            f"| {cell['algo']} | {cell['scenario']} | "
+            f"{protocol.PLATEAU_WORDS[cell['plateaued_at_budget']]} | "
             f"{'none' if proposed is None else f'{proposed:,}'} | "
             f"{format_mean_ci(final_stats(cell, 'return'), False, digits=1)} | "
             f"{format_mean_ci(final_stats(cell, 'success_rate'), True, digits=1)} | "

@@ -196,8 +196,8 @@ def prepare_out(prog: str, out: Path, force: bool) -> None:
 
 # What a cell-based experiment keeps when Ctrl-C or SIGTERM stops it (cli.run_stoppable).
 STOPPED_KEPT = ("the finished programs' cells are kept in the --out folder, and the "
-                "program in training from its last save there under partial/ (every "
-                "--checkpoint-minutes); the same command goes on from them")
+                "program in training from its last save under partial/ if "
+                "--checkpoint-minutes allowed one; the same command goes on from them")
 
 
 def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,

@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         if problem:
             raise cli.UsageError(problem.replace("--out", "--into"))
         copies, stale, new, merged = plan(args.sources, into)
-    except cli.UsageError as error:
+    except (cli.UsageError, ValueError) as error:  # ValueError: a cell or ledger not readable
         cli.fail(PROG, str(error))
     (into / "cells").mkdir(parents=True, exist_ok=True)
     for name, path in copies.items():

@@ -238,7 +238,7 @@ def search_markdown(result: dict) -> str:
         lines += [f"## {pair['scenario']}, {LEARNER_NAMES[pair['algo']]}",
                   "",
                   f"Return of {parameter} 0 ({REFERENCE_NAME[parameter]}) plateaued at "
-                  f"this budget: {flag}; program: "
+                  f"this budget: {protocol.PLATEAU_WORDS[flag]}; program: "
                   f"{duration(pair['train_s'])} training, {duration(pair['compile_s'])} "
                   f"compiling on {pair['device']} at `{pair['commit']}`.",
                   "", *rows_table(pair["rows"], parameter, chosen["value"]), ""]

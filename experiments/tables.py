@@ -585,8 +585,9 @@ def tables_markdown(result: dict) -> str:
         "mean and its 95% confidence interval over seeds (Student t, clipped to the metric's "
         "range); after a CCR cell, `↓*` / `↑*`: CCR significantly below / above plain, `↓†` / "
         "`↑†`: below / above pessimistic (Welch, p < 0.05, each test alone: 36 of them; a "
-        "seed's three variants share their initial parameters and evaluation episodes, "
-        "which these unpaired tests ignore: conservative where the variants' results "
+        "seed's three variants share their evaluation episodes, and plain and pessimistic "
+        "their initial parameters (CCR's networks also read the shared scores), a pairing "
+        "these unpaired tests ignore: conservative where the variants' results "
         "correlate); in parentheses the paper's number (IDDPG is the paper's DDPG: one "
         "DDPG per robot). Reference rows: hand-written "
         f"controllers over {settings['controller_episodes']} episodes (no learning).",
@@ -734,8 +735,8 @@ def _convergence_text(not_levelled: list[dict], undetermined: list[dict]) -> str
         return "It did in every cell."
     text = f"It did **not** in: {names(not_levelled)}." if not_levelled else ""
     if undetermined:
-        text += (" " if text else "") + (f"Too few evaluations or seeds to tell in: "
-                                         f"{names(undetermined)}.")
+        text += (" " if text else "") + ("Undetermined (too few evaluations or seeds, or a "
+                                         f"NaN return) in: {names(undetermined)}.")
     return text
 
 
@@ -849,10 +850,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "<searches>/pessimistic/search.json)")
     parser.add_argument("--searches", type=Path, default=None,
                         help="the folder holding both searches' results, ccr/ and "
-                        "pessimistic/ (default: the committed ones, experiments/results/search; "
-                        "runs/search after `make sweep` and `make penalty-sweep`; with "
-                        "--quick, quick searches' provisional choices, else lambda 30 and "
-                        "penalty 1)")
+                        "pessimistic/, whose choices the tables use (default: the committed "
+                        "ones, experiments/results/search; `make sweep` and `make "
+                        "penalty-sweep` write runs/search; with --quick the default is "
+                        "lambda 30 and penalty 1, and a named folder gives its quick "
+                        "searches' provisional choices)")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
                         "tables are written once all 18 programs exist)")

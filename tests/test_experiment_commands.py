@@ -230,6 +230,15 @@ def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, cap
         (broken / "invocations.json").write_text(text)
         refused(merge, [str(broken), "--into", str(into)], capsys, "is not a record")
     refused(merge, [str(into), "--into", str(into)], capsys, "--into must not be")
+    # Settings the current code refuses (an interval it would round), found when a cell's
+    # training record is checked: one line, and no --into made.
+    rounded = {**settings, "eval_every": 12_345, "eval_episodes": 4}
+    odd = results_folder(tmp_path / "odd", rounded, [], {})
+    (odd / "cells" / "turbulence-iddpg.json").write_text(json.dumps(
+        {"algo": "iddpg", "scenario": "turbulence", "settings": rounded, "budget": 3_000_000,
+         "training": {}}))
+    refused(merge, [str(odd), "--into", str(tmp_path / "new")], capsys, "--eval-every 12,345")
+    assert not (tmp_path / "new").exists()
     assert sorted(p.name for p in (into / "cells").iterdir()) == ["turbulence-iddpg.json"]
     assert (into / "invocations.json").read_text() == before
     monkeypatch.setattr(ledger, "RESULTS", tmp_path)
