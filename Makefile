@@ -13,10 +13,12 @@ PEER_STAMP := $(PEER_VENV)/.installed-stamp
 install: $(STAMP)
 
 # Re-runs only when the package metadata changes, so `make install` is idempotent.
+# setuptools' generic notice that an editable install imports from this folder (it does, by
+# design) is filtered out; pip's and setuptools' other warnings still show.
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	PYTHONWARNINGS="ignore:Editable installation" $(PY) -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
 # The main job: MADDPG with CCR on the hidden obstacle, 3 seeds at once (about 5 minutes on
