@@ -11,6 +11,7 @@ The t quantiles are the printed table's: ``t_{0.975, 1} = 12.706``, ``t_{0.975, 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -128,6 +129,15 @@ def test_welch_test_against_a_hand_computation():
         welch([1.0], [2.0, 3.0])
     assert welch([1.0, 1.0], [2.0, 2.0])["significant"] is True
     assert welch([1.0, 1.0], [1.0, 1.0])["significant"] is False
+    # Equal values whose computed spread is rounding noise: no spread either, and no
+    # warning (the tables test many cells of constant success).
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert welch([0.7] * 3, [0.1] * 3)["p"] == 0.0
+        assert welch([0.7] * 3, [0.7] * 3)["p"] == 1.0
+        spread = [0.95, 0.96, 0.97]
+        assert welch([0.8] * 3, spread)["p"] == pytest.approx(
+            welch_by_hand([0.8] * 3, spread)[2], rel=1e-9)
 
 
 def test_bootstrap_interval_of_the_headline_matches_the_normal_approximation():

@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -99,13 +100,20 @@ def welch(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray,
     """Welch's t-test of ``mean(a) == mean(b)`` (unequal variances, Welch-Satterthwaite
     degrees of freedom): ``{"difference", "p", "significant"}``, ``difference`` being
     ``mean(a) - mean(b)`` and ``significant`` meaning ``p < alpha``. Two groups without
-    any spread differ exactly when their means differ (p is 0 or 1)."""
+    any spread (all values equal) differ exactly when their values differ (p is 0 or 1).
+    A group of equal values has variance 0, though the computed one is rounding noise
+    (``[0.7] * 3`` gives about 1e-32): scipy's warning of that precision loss is silenced,
+    as the noise is negligible beside the other group's variance."""
     a, b = _two_groups(a, b, "welch")
     difference = float(a.mean() - b.mean())
-    if np.std(a) == 0 and np.std(b) == 0:
-        p = 0.0 if difference != 0 else 1.0
+    constant_a, constant_b = bool(np.all(a == a[0])), bool(np.all(b == b[0]))
+    if constant_a and constant_b:
+        p = 0.0 if a[0] != b[0] else 1.0
     else:
-        p = float(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue)
+        with warnings.catch_warnings():
+            if constant_a or constant_b:
+                warnings.filterwarnings("ignore", "Precision loss", RuntimeWarning)
+            p = float(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue)
     return {"difference": difference, "p": p, "significant": bool(p < alpha)}
 
 
