@@ -39,9 +39,22 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+
+class _NotAnInterrupt(logging.Filter):
+    """Drops a log record carrying a ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM as the
+    commands raise it): orbax logs a wait for a save cut short so as an ERROR with its
+    traceback ("Save Finalize thread failed"), while the save itself goes on and completes
+    when the checkpoints are closed; the command reports the stop in its own one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        kind = record.exc_info[0] if record.exc_info else None
+        return not (kind is not None and issubclass(kind, KeyboardInterrupt))
+
+
 # Orbax reports routine events (waiting for a save, cleaning temporary folders)
 # through absl at WARNING; the commands print their own messages.
 logging.getLogger("absl").setLevel(logging.ERROR)
+logging.getLogger("absl").addFilter(_NotAnInterrupt())
 
 
 class CheckpointError(Exception):
