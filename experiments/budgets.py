@@ -105,7 +105,8 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
 
 
 def plateau_flag(returns: np.ndarray) -> bool | None:
-    """Whether the whole curves ``[seeds, points]`` end level (``None``: too few points)."""
+    """Whether the whole curves ``[seeds, points]`` end level (``None``: undetermined, too
+    few points or a NaN return)."""
     try:
         return plateau(returns)["plateaued"]
     except ValueError:

@@ -82,6 +82,17 @@ def cell_results(path: Path) -> dict[str, Any]:
     return cell
 
 
+def is_current(path: Path, settings: dict[str, Any]) -> bool:
+    """Whether the cell file at ``path`` is what ``settings`` make now
+    (``ledger.cell_is_current``); settings the current code refuses to run (an interval it
+    would round, say) raise :class:`ccrjax.cli.UsageError` naming the folder."""
+    try:
+        return cell_is_current(read_json(path), settings)
+    except ValueError as error:  # protocol.run_config's refusal
+        raise cli.UsageError(f"{path.parent.parent} holds settings the current code refuses: "
+                             f"{error}") from None
+
+
 def plan(sources: list[Path], into: Path
          ) -> tuple[dict[str, Path], list[str], int, dict[str, Any]]:
     """The cells to copy (name -> source file), the stale cells left out (made with other
@@ -103,12 +114,12 @@ def plan(sources: list[Path], into: Path
                                  "cells would not match")
     # A cell of the target made with other settings is replaced, not defended.
     held = {path.name: path for path in sorted((into / "cells").glob("*.json"))
-            if cell_is_current(read_json(path), reference["settings"])}
+            if is_current(path, reference["settings"])}
     copies: dict[str, Path] = {}
     stale: list[str] = []
     for folder in sources:
         for path in sorted((folder / "cells").glob("*.json")):
-            if not cell_is_current(read_json(path), reference["settings"]):
+            if not is_current(path, reference["settings"]):
                 stale.append(str(path))
                 continue
             known = copies.get(path.name) or held.get(path.name)
@@ -142,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         if problem:
             raise cli.UsageError(problem.replace("--out", "--into"))
         copies, stale, new, merged = plan(args.sources, into)
-    except (cli.UsageError, ValueError) as error:  # ValueError: a cell or ledger not readable
+    except cli.UsageError as error:
         cli.fail(PROG, str(error))
     (into / "cells").mkdir(parents=True, exist_ok=True)
     for name, path in copies.items():

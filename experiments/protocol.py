@@ -122,11 +122,11 @@ def quick(config: TrainConfig) -> TrainConfig:
                                learner=learner)
 
 
-# The learners as the experiments' outputs name them; IDDPG is the paper's "DDPG" (one DDPG
-# per robot, its critic seeing only its own observation and action).
 # Whether a plain learner's return plateaued (ccrjax.run.stats.plateau), as the summaries say it.
 PLATEAU_WORDS = {True: "yes", False: "**no**",
                  None: "undetermined (too few evaluations or seeds, or a NaN return)"}
+# The learners as the experiments' outputs name them; IDDPG is the paper's "DDPG" (one DDPG
+# per robot, its critic seeing only its own observation and action).
 LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 QUICK_NOTE = ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
               "hundred steps per run. It checks the pipeline; no number here measures "
