@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 	PYTHONWARNINGS="ignore:Editable installation" $(PY) -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
-# The main job: MADDPG with CCR on the hidden obstacle, 3 seeds at once (about 5 minutes on
+# The main job: MADDPG with CCR on the hidden obstacle, 3 seeds at once (3 to 5 minutes on
 # 2 CPU cores), into runs/<scenario>-<algo>-<variant>-<time>/; prints where the pictures are.
 train: install
 	$(PY) -m ccrjax.train --scenario hidden_obstacle --algo maddpg --variant ccr --seeds 3
