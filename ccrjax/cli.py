@@ -20,6 +20,7 @@ import os
 import re
 import signal
 import sys
+import threading
 import typing
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -68,17 +69,65 @@ class Parser(argparse.ArgumentParser):
 def run_stoppable(prog: str, main: Callable[[], int], kept: str) -> int:
     """``main()``, with Ctrl-C and SIGTERM ending it through one line saying what was
     ``kept`` and status 130 (:data:`INTERRUPTED`), not a traceback: the experiments'
-    entry point. Ctrl-C is honoured even where the process was started with SIGINT ignored
-    (a test runner's worker, a script's background job), as ``ccrjax.train`` does."""
+    entry point; a stop ends the process there (see below). Ctrl-C is honoured even where
+    the process was started with SIGINT ignored (a test runner's worker, a script's
+    background job), as ``ccrjax.train`` does."""
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        with sigterm_as_interrupt():
+        with stop_noticed(prog), sigterm_as_interrupt():
             return main()
     except KeyboardInterrupt:
         print(f"{prog}: stopped; {kept}", file=sys.stderr, flush=True)
-        return INTERRUPTED
+        sys.stdout.flush()
+        # What is kept is written by now (the commands' cleanup runs in their finally
+        # blocks), but XLA finishes a computation in flight before the interpreter may exit:
+        # a chunk of training, minutes on a CPU, at full load. The process ends here instead.
+        os._exit(INTERRUPTED)
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+STOP_NOTICE = ("stopping (at once, or once the running compilation or chunk of training "
+               "returns: XLA cannot be interrupted)")
+
+
+@contextlib.contextmanager
+def stop_noticed(prog: str) -> Iterator[None]:
+    """Within the block the first Ctrl-C or SIGTERM is answered at once with
+    ``prog: stopping ...`` (:data:`STOP_NOTICE`). Python runs signal handlers only between
+    bytecodes, so a request that arrives while XLA compiles or runs a chunk of training
+    would otherwise go unanswered until that returns (minutes, for a long program); the
+    interpreter's C-level handler writes the signal's number to ``signal.set_wakeup_fd``
+    the moment it arrives, and a watcher thread reading it prints the notice. Outside the
+    main thread (where no wakeup descriptor can be set) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    read, write = os.pipe()
+    os.set_blocking(write, False)
+    previous = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        while True:
+            try:
+                numbers = os.read(read, 64)
+            except OSError:
+                return
+            if not numbers:  # the block ended
+                return
+            if signal.SIGINT in numbers or signal.SIGTERM in numbers:
+                print(f"{prog}: {STOP_NOTICE}", file=sys.stderr, flush=True)
+                return
+
+    watcher = threading.Thread(target=watch, name="stop-notice", daemon=True)
+    watcher.start()
+    try:
+        yield
+    finally:
+        signal.set_wakeup_fd(previous)
+        os.close(write)  # the watcher reads the end of the pipe, after any number in it
+        watcher.join(timeout=5)
+        os.close(read)
 
 
 @contextlib.contextmanager

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ccrjax import cli
+
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
 
@@ -577,6 +579,8 @@ def test_an_experiment_stopped_by_ctrl_c_says_what_it_kept_in_one_line(tmp_path,
     rest = process.communicate(timeout=120)[1]
     assert process.returncode == 130, "".join(seen) + rest
     assert "Traceback" not in rest, rest
+    # Heard at once, even if the program was compiling: the notice, then the last line.
+    assert f"python experiments/search.py: {cli.STOP_NOTICE}" in rest.splitlines(), rest
     assert rest.strip().splitlines()[-1].startswith(
         "python experiments/search.py: stopped; the finished programs' cells are kept")
     invocations = json.loads((out / "invocations.json").read_text())
