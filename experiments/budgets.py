@@ -187,8 +187,10 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path) -> list[Path]:
-    """``curves_<algo>.png``: return, success and danger along training per scenario."""
+def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path, quick: bool = False
+                       ) -> list[Path]:
+    """``curves_<algo>.png``: return, success and danger along training per scenario
+    (``quick``: the titles say the quick mode)."""
     paths = []
     for algo in dict.fromkeys(a for _, a in cells):
         curves = Curves()
@@ -198,7 +200,8 @@ def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path) -> list[Pa
                            {m: np.asarray(cell["curves"][m]) for m in FINAL_METRICS})
         path = out / f"curves_{algo}.png"
         draw_curves(curves, path, metrics=FINAL_METRICS,
-                    title=f"plain {algo}, budget seeds: is the return still moving?")
+                    title=f"{protocol.QUICK_FIGURE if quick else ''}plain {algo}, budget "
+                    "seeds: is the return still moving?")
         paths.append(path)
     return paths
 
@@ -227,8 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fresh episodes per evaluation and seed (default: "
                         f"{protocol.EVAL_EPISODES})")
     parser.add_argument("--quick", action="store_true",
-                        help="tiny networks, and by default a tiny budget and evaluation: the "
-                        "pipeline in moments")
+                        help=protocol.QUICK_HELP.replace("2 seeds unless --seeds", "the seeds "
+                                                        "of --seeds"))
     add_out_options(parser, "budgets", Path("runs/budgets"))
     add_checkpoint_option(parser)
     return parser
@@ -298,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     write_atomic(out / "budgets.json", json.dumps(result) + "\n")
     write_atomic(out / "budgets.md", budgets_markdown(result))
-    figures = draw_budget_curves(ordered, out)
+    figures = draw_budget_curves(ordered, out, bool(record.get("quick")))
     print(budgets_markdown(result))
     print(f"wrote {out / 'budgets.md'}, budgets.json, "
           + ", ".join(path.name for path in figures))

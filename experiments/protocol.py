@@ -129,9 +129,16 @@ PLATEAU_WORDS = {True: "yes", False: "**no**",
 # per robot, its critic seeing only its own observation and action).
 LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 QUICK_NOTE = ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
-              "hundred steps per run. It checks the pipeline; no number here measures "
-              "learning or the scenarios (the reference controllers run 10-step episodes "
-              "too, and the plateau checks see a handful of evaluations).")
+              "hundred to a few thousand steps per run, 4 evaluation episodes. It checks the "
+              "pipeline; no number here measures learning or the scenarios (the reference "
+              "controllers run 10-step episodes too, the plateau checks see a handful of "
+              "evaluations, and the variants barely train, so their rows can coincide: "
+              "pessimistic equal to plain to the digits shown).")
+QUICK_HELP = ("the pipeline at a toy size, in minutes (tiny networks, 2 environments of "
+              "10-step episodes, a few hundred to a few thousand steps per run, 4 evaluation "
+              "episodes, 2 seeds unless --seeds): its numbers measure nothing")
+# Before every figure's title in quick mode, so a figure copied out alone still says so.
+QUICK_FIGURE = "[quick mode: measures nothing] "
 QUICK_STEPS = 400
 QUICK_EVAL_EVERY = 200
 QUICK_EVAL_EPISODES = 4

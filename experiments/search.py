@@ -266,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners (default: all three)")
     parser.add_argument("--quick", action="store_true",
-                        help="a tiny budget and tiny networks: the pipeline in minutes")
+                        help=protocol.QUICK_HELP)
     add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
     return parser
@@ -336,9 +336,10 @@ def main(argv: list[str] | None = None) -> int:
     }
     write_atomic(out / "search.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "search.md", search_markdown(result))
-    title = f"{settings.variant}: averaged over {len(ordered)} scenario x learner pair(s)"
+    quick = protocol.QUICK_FIGURE if settings.quick else ""
+    title = f"{quick}{settings.variant}: averaged over {len(ordered)} scenario x learner pair(s)"
     draw_search_tradeoff({title: result["aggregate"]}, parameter, out / "tradeoff.png")
-    draw_search_tradeoff({f"{s}, {LEARNER_NAMES[a]}": cell["rows"]
+    draw_search_tradeoff({f"{quick}{s}, {LEARNER_NAMES[a]}": cell["rows"]
                           for (s, a), cell in ordered.items()}, parameter,
                          out / "tradeoff_pairs.png")
     print(search_markdown(result))

@@ -745,7 +745,9 @@ def _probability(value: dict) -> str:
 
 
 # ---------------------------------------------------------------------------- figures
-def draw_figures(cells, out: Path) -> list[Path]:
+def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
+    """The tables' figures from the cells (``quick``: every title says the quick mode)."""
+    note = protocol.QUICK_FIGURE if quick else ""
     written = []
     for scenario in SCENARIOS:
         panels = {}
@@ -756,7 +758,7 @@ def draw_figures(cells, out: Path) -> list[Path]:
                                      ["danger_frequency"]))
                 for variant in VARIANTS}
         path = out / f"progress_{scenario}.png"
-        draw_progress_matched(panels, path, title=f"{SCENARIO_NAMES[scenario]}: dangerous-"
+        draw_progress_matched(panels, path, title=f"{note}{SCENARIO_NAMES[scenario]}: dangerous-"
                               "behaviour frequency against return along training")
         written.append(path)
     metrics = ("return", "danger_frequency", "success_rate", "learning_danger_steps")
@@ -771,17 +773,17 @@ def draw_figures(cells, out: Path) -> list[Path]:
                            colour=VARIANT_COLOURS[variant])  # as in the progress figures
             path = out / f"curves_{scenario}_{algo}.png"
             draw_curves(curves, path, metrics=metrics,
-                        title=f"{SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}: plain, "
+                        title=f"{note}{SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}: plain, "
                         "pessimistic and CCR during training")
             written.append(path)
     plain = cells[("hidden_obstacle", "maddpg", "plain")]
     ccr = cells[("hidden_obstacle", "maddpg", "ccr")]
     path = out / "trajectories_hidden_obstacle_maddpg.png"
-    draw_trajectories(plain, ccr, path)
+    draw_trajectories(plain, ccr, path, note)
     written.append(path)
     path = out / "distance_hidden_obstacle_maddpg.png"
     draw_obstacle_distances(np.asarray(plain["arrival"]["centre_distance"]),
-                            np.asarray(ccr["arrival"]["centre_distance"]), path)
+                            np.asarray(ccr["arrival"]["centre_distance"]), path, note)
     written.append(path)
     return written
 
@@ -806,8 +808,9 @@ def _record(cell: dict) -> EpisodeRecord:
     )
 
 
-def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
-    """The same evaluation episode (same starts, same obstacle) by both teams, side by side."""
+def draw_trajectories(plain: dict, ccr: dict, path: Path, note: str = "") -> None:
+    """The same evaluation episode (same starts, same obstacle) by both teams, side by side
+    (``note`` before each label)."""
     images = []
     with tempfile.TemporaryDirectory() as folder:
         for name, cell in (("plain", plain), ("ccr", ccr)):
@@ -823,7 +826,7 @@ def draw_trajectories(plain: dict, ccr: dict, path: Path) -> None:
         for image, label in zip(images, ("MADDPG (CCR not running: all standby)",
                                          "MADDPG+CCR (CCR's colours)"), strict=True):
             canvas.paste(image, (x, 40))
-            draw.text((x + 20, 8), label, fill="black", font=font)
+            draw.text((x + 20, 8), note + label, fill="black", font=font)
             x += image.width
         with replacing(path) as temporary:
             canvas.save(temporary)
@@ -861,7 +864,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="train only these learners' programs (default: all three)")
     parser.add_argument("--quick", action="store_true",
-                        help="a tiny budget and tiny networks: checks the pipeline in minutes")
+                        help=protocol.QUICK_HELP)
     add_out_options(parser, "tables", default_text="runs/tables")
     add_checkpoint_option(parser)
     return parser
@@ -948,7 +951,7 @@ def main(argv: list[str] | None = None) -> int:
     result = summary(cells, whole, ledger.invocations, controllers, sources)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))
-    figures = draw_figures(cells, out)
+    figures = draw_figures(cells, out, settings.quick)
     print(tables_markdown(result))
     print(f"wrote {out / 'tables.md'}, {out / 'tables.json'} and "
           + ", ".join(str(f) for f in figures))

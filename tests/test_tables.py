@@ -175,7 +175,18 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
     out = tmp_path / "search"
     argv = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence", "--algos",
             "iddpg", "--values", "0.1", "1", "--out", str(out)]
+    titles = []
+    draw = search.draw_search_tradeoff
+
+    def recording(panels, *args, **kwargs):
+        titles.extend(panels)
+        return draw(panels, *args, **kwargs)
+
+    search.draw_search_tradeoff = recording
     assert search.main(argv) == 0
+    search.draw_search_tradeoff = draw
+    # A quick figure copied out alone still says what it is.
+    assert len(titles) == 2 and all(t.startswith(search.protocol.QUICK_FIGURE) for t in titles)
     result = json.loads((out / "search.json").read_text())
     assert result["parameter"] == "penalty"
     assert [row["value"] for row in result["aggregate"]] == [0.0, 0.1, 1.0]

@@ -149,16 +149,17 @@ def draw_rank_bars(series: dict[str, np.ndarray], path: str | os.PathLike[str], 
 
 
 def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
-                            path: str | os.PathLike[str]) -> None:
+                            path: str | os.PathLike[str], note: str = "") -> None:
     """The paper's behavioural analysis as a figure: per robot in order of arrival at the
     hidden obstacle, the average distance to its centre (``[seeds, robots]`` each), plain
-    MADDPG against MADDPG+CCR, with 95% intervals over seeds."""
+    MADDPG against MADDPG+CCR, with 95% intervals over seeds; ``note`` a line above the title."""
     draw_rank_bars(
         {"MADDPG": plain, "MADDPG+CCR": ccr}, path,
         xlabel="robot, in order of arrival at the obstacle",
         ylabel="average distance to the obstacle centre",
-        title="hidden obstacle: every robot's average distance to the obstacle's centre over "
-              "the episode\n(successful or not, as in the paper's figure; mean, 95% CI over seeds)",
+        title=(f"{note.strip()}\n" if note else "")
+        + "hidden obstacle: every robot's average distance to the obstacle's centre over the "
+        "episode\n(successful or not, as in the paper's figure; mean, 95% CI over seeds)",
     )
 
 
