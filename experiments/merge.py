@@ -24,6 +24,7 @@ from typing import Any
 from ledger import (
     INVOCATIONS,
     NOT_IN_CELLS,
+    cell_identity,
     cell_is_current,
     check_out,
     read_json,
@@ -33,6 +34,7 @@ from ledger import (
 
 from ccrjax import cli
 from ccrjax.run.folder import write_atomic
+from ccrjax.training import ALGOS
 
 PROG = "python experiments/merge.py"
 
@@ -93,6 +95,17 @@ def is_current(path: Path, settings: dict[str, Any]) -> bool:
                              f"{error}") from None
 
 
+def differing(settings: dict[str, Any], other: dict[str, Any]) -> str:
+    """The settings that tell two folders' cells apart, as ``name value / other value``."""
+    found: dict[str, tuple[Any, Any]] = {}
+    for algo in ALGOS:
+        mine, theirs = cell_identity(settings, algo), cell_identity(other, algo)
+        for key in sorted(mine.keys() | theirs.keys()):
+            if mine.get(key) != theirs.get(key):
+                found.setdefault(key, (mine.get(key), theirs.get(key)))
+    return "; ".join(f"{key} {a!r} / {b!r}" for key, (a, b) in found.items())
+
+
 def plan(sources: list[Path], into: Path
          ) -> tuple[dict[str, Path], list[str], int, dict[str, Any]]:
     """The cells to copy (name -> source file), the stale cells left out (made with other
@@ -110,8 +123,9 @@ def plan(sources: list[Path], into: Path
             raise cli.UsageError(f"{folder} holds the results of {ledger['experiment']}, "
                                  f"not of {experiment}")
         if not same_cells(ledger["settings"], reference["settings"]):
-            raise cli.UsageError(f"{folder} was made with other settings than {name}: its "
-                                 "cells would not match")
+            raise cli.UsageError(f"{folder} was made with other settings than {name} "
+                                 f"({differing(ledger['settings'], reference['settings'])}): "
+                                 "its cells would not match")
     # A cell of the target made with other settings is replaced, not defended.
     held = {path.name: path for path in sorted((into / "cells").glob("*.json"))
             if is_current(path, reference["settings"])}

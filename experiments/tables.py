@@ -932,10 +932,17 @@ def main(argv: list[str] | None = None) -> int:
 
         # The searches' choices last: the command line's own problems are named first.
         settings = validated(Settings(lam=0.0, penalty=0.0, **fields))
-        lam, sources["lam"] = selected("ccr", args.lam, args.quick, args.searches)
-        penalty, sources["penalty"] = selected("pessimistic", args.penalty, args.quick,
-                                               args.searches)
-        return validated(dataclasses.replace(settings, lam=lam, penalty=penalty))
+        chosen, problems = {}, []
+        for name, variant, given in (("lam", "ccr", args.lam),
+                                     ("penalty", "pessimistic", args.penalty)):
+            try:  # both named at once when both are missing
+                chosen[name], sources[name] = selected(variant, given, args.quick,
+                                                       args.searches)
+            except cli.UsageError as error:
+                problems.append(str(error))
+        if problems:
+            raise cli.UsageError("; and ".join(problems))
+        return validated(dataclasses.replace(settings, **chosen))
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))

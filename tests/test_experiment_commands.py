@@ -142,6 +142,8 @@ def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(tables, "SEARCHES", tmp_path / "no-searches")
     refused(tables, ["--penalty", "1", "--out", out], capsys, "no ccr search result", "--lam",
             "--searches")
+    refused(tables, ["--out", out], capsys, "no ccr search result", "give --lam; and no "
+            "pessimistic search result", "give --penalty")
     # Without a selection to read, the command line's own problems still come first.
     afile = tmp_path / "afile"
     afile.write_text("")
@@ -216,7 +218,7 @@ def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, cap
     into = results_folder(tmp_path / "into", settings, [], {"turbulence-iddpg.json": "A"})
     before = (into / "invocations.json").read_text()
     other = results_folder(tmp_path / "other", {**settings, "steps": 5}, [], {"x.json": "X"})
-    refused(merge, [str(other), "--into", str(into)], capsys, "other settings")
+    refused(merge, [str(other), "--into", str(into)], capsys, "other settings", "budget 5 / ")
     clash = results_folder(tmp_path / "clash", settings, [record("b")],
                            {"turbulence-iddpg.json": "B", "y.json": "Y"})
     refused(merge, [str(clash), "--into", str(into)], capsys, "turbulence-iddpg.json differs")
