@@ -230,8 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fresh episodes per evaluation and seed (default: "
                         f"{protocol.EVAL_EPISODES})")
     parser.add_argument("--quick", action="store_true",
-                        help=protocol.QUICK_HELP.replace("2 seeds unless --seeds", "the seeds "
-                                                        "of --seeds"))
+                        help=protocol.quick_help("the seeds of --seeds"))
     add_out_options(parser, "budgets", Path("runs/budgets"))
     add_checkpoint_option(parser)
     return parser

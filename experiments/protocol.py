@@ -134,9 +134,15 @@ QUICK_NOTE = ("**Quick mode**: tiny networks, 2 environments of 10-step episodes
               "controllers run 10-step episodes too, the plateau checks see a handful of "
               "evaluations, and the variants barely train, so their rows can coincide: "
               "pessimistic equal to plain to the digits shown).")
-QUICK_HELP = ("the pipeline at a toy size, in minutes (tiny networks, 2 environments of "
-              "10-step episodes, a few hundred to a few thousand steps per run, 4 evaluation "
-              "episodes, 2 seeds unless --seeds): its numbers measure nothing")
+
+
+def quick_help(seeds: str = "2 seeds unless --seeds") -> str:
+    """The ``--quick`` option's help text; ``seeds``: how many seeds the quick mode runs."""
+    return ("the pipeline at a toy size, in minutes (tiny networks, 2 environments of 10-step "
+            "episodes, a few hundred to a few thousand steps per run, 4 evaluation episodes, "
+            f"{seeds}): its numbers measure nothing")
+
+
 # Before every figure's title in quick mode, so a figure copied out alone still says so.
 QUICK_FIGURE = "[quick mode: measures nothing] "
 QUICK_STEPS = 400

@@ -266,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners (default: all three)")
     parser.add_argument("--quick", action="store_true",
-                        help=protocol.QUICK_HELP)
+                        help=protocol.quick_help())
     add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
     return parser

@@ -864,7 +864,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="train only these learners' programs (default: all three)")
     parser.add_argument("--quick", action="store_true",
-                        help=protocol.QUICK_HELP)
+                        help=protocol.quick_help())
     add_out_options(parser, "tables", default_text="runs/tables")
     add_checkpoint_option(parser)
     return parser

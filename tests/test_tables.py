@@ -168,7 +168,7 @@ def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
     assert "stopped before the end" in (out / "tables.md").read_text()
 
 
-def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
+def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys, monkeypatch):
     """Both searches over one scenario and learner: the cells, the choice by the rule,
     the files; then a re-run that trains nothing."""
     search = load_module("search_script", SCRIPT.parent / "search.py")
@@ -182,9 +182,9 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys):
         titles.extend(panels)
         return draw(panels, *args, **kwargs)
 
-    search.draw_search_tradeoff = recording
+    monkeypatch.setattr(search, "draw_search_tradeoff", recording)
     assert search.main(argv) == 0
-    search.draw_search_tradeoff = draw
+    monkeypatch.setattr(search, "draw_search_tradeoff", draw)
     # A quick figure copied out alone still says what it is.
     assert len(titles) == 2 and all(t.startswith(search.protocol.QUICK_FIGURE) for t in titles)
     result = json.loads((out / "search.json").read_text())
