@@ -56,7 +56,7 @@ from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
 from ccrjax.run.search import summarise
-from ccrjax.run.stats import format_mean_ci, plateau
+from ccrjax.run.stats import format_mean_ci, plateau, plateau_or_undetermined
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import Curves, draw_curves
@@ -104,15 +104,6 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
     return checks, proposed
 
 
-def plateau_flag(returns: np.ndarray) -> bool | None:
-    """Whether the whole curves ``[seeds, points]`` end level (``None``: undetermined, too
-    few points or a NaN return)."""
-    try:
-        return plateau(returns)["plateaued"]
-    except ValueError:
-        return None
-
-
 def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
                ) -> dict[str, Any]:
     """One scenario and learner's plain runs: the curves (checked by :func:`checked`)."""
@@ -140,7 +131,7 @@ def checked(cell: dict[str, Any], settings: Settings) -> dict[str, Any]:
     checks, proposed = check_budgets(np.asarray(cell["env_steps"]), returns,
                                      settings.candidates(cell["algo"]))
     return {**cell, "checks": checks, "proposed_budget": proposed,
-            "plateaued_at_budget": plateau_flag(returns)}
+            "plateaued_at_budget": plateau_or_undetermined(returns)["plateaued"]}
 
 
 def final_stats(cell: dict[str, Any], metric: str) -> dict[str, Any]:

@@ -57,7 +57,7 @@ from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
 from ccrjax.run.search import REFERENCE_NAME, search_grid, search_rows, summarise
 from ccrjax.run.selection import select
-from ccrjax.run.stats import format_mean_ci, plateau
+from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import draw_search_tradeoff
@@ -94,10 +94,7 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
     history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
                                                       "danger_frequency")}
     reference = runs.history["return"][np.asarray(grid_values) == 0.0]
-    try:
-        levelled = plateau(reference)
-    except ValueError as error:  # too few evaluations to tell
-        levelled = {"plateaued": None, "why": str(error)}
+    levelled = plateau_or_undetermined(reference)
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "training": training_record(config),

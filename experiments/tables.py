@@ -103,7 +103,7 @@ from ccrjax.run.stats import (
     iqm,
     mean_ci,
     mean_relative_change,
-    plateau,
+    plateau_or_undetermined,
     probability_of_improvement,
     welch,
 )
@@ -192,13 +192,6 @@ def build_training(job: Job, settings: Settings) -> GridTraining:
                         record_episodes=episodes, record_key=key)
 
 
-def _plateau(returns: np.ndarray) -> dict[str, Any]:
-    try:
-        return plateau(returns)
-    except ValueError as error:  # too few seeds or evaluations to tell
-        return {"plateaued": None, "why": str(error)}
-
-
 def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     """The finished cells of a job's runs, by variant."""
     seeds = list(settings.seeds)
@@ -214,7 +207,7 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
             "params": {k: [float(x) for x in v] for k, v in part.params.items()},
             "final": {m: [float(x) for x in final[m]] for m in METRICS},
             "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},
-            "return_plateau": _plateau(part.history["return"]),
+            "return_plateau": plateau_or_undetermined(part.history["return"]),
             "train_seconds_of_program": runs.run_s,
             "compile_seconds_of_program": runs.compile_s,
             "device": device_name(), "commit": git_commit(),

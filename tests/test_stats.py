@@ -25,6 +25,7 @@ from ccrjax.run.stats import (
     mean_ci_along,
     mean_relative_change,
     plateau,
+    plateau_or_undetermined,
     probability_of_improvement,
     welch,
 )
@@ -207,6 +208,10 @@ def test_plateau_tells_a_rising_curve_from_a_flat_one():
     broken = flat.copy()
     broken[1, -1] = np.nan
     assert plateau(broken)["plateaued"] is None
+    # What the results record: the check itself, or undetermined with the reason.
+    assert plateau_or_undetermined(rising) == result
+    short = plateau_or_undetermined(flat[:, :1])
+    assert short["plateaued"] is None and "points" in short["why"]
 
 
 def test_rliable_iqm_is_the_mean_of_the_middle_half():

@@ -260,3 +260,12 @@ def plateau(curves: np.ndarray, fraction: float = 0.2, level: float = 0.95) -> d
             if finite else None,
             "last": value, "previous": previous["mean"], "ci_low": previous["ci_low"],
             "ci_high": previous["ci_high"], "window": window}
+
+
+def plateau_or_undetermined(curves: np.ndarray) -> dict:
+    """:func:`plateau` of ``curves``, or ``{"plateaued": None, "why": ...}`` where the
+    curves are too few or too short to tell (what a results file records either way)."""
+    try:
+        return plateau(curves)
+    except ValueError as error:
+        return {"plateaued": None, "why": str(error)}
