@@ -60,7 +60,7 @@ from ccrjax.run.selection import select
 from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
-from ccrjax.viz.plots import draw_search_tradeoff
+from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
 
 PROG = "python experiments/search.py"
 LEARNER_NAMES = protocol.LEARNER_NAMES
@@ -176,6 +176,14 @@ def selection(settings: Settings, cells: dict, reference_cells: dict | None = No
     why_not = not_the_protocols(settings)
     return {**chosen, "pairs": len(cells), "protocol": why_not is None,
             "provisional_because": why_not}
+
+
+def choice_mark(chosen: dict[str, Any]) -> SearchChoice:
+    """The rule's decision as drawn on the averaged tradeoff figure (success on its x
+    axis: :data:`protocol.RULE` constrains the success rate)."""
+    return SearchChoice(value=chosen["value"],
+                        threshold=chosen["reference_constraint"] - protocol.RULE.tolerance,
+                        label="chosen" if chosen["protocol"] else "provisional choice")
 
 
 def _cell_text(stats: dict, percent: bool) -> str:
@@ -335,7 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     write_atomic(out / "search.md", search_markdown(result))
     quick = protocol.QUICK_FIGURE if settings.quick else ""
     title = f"{quick}{settings.variant}: averaged over {len(ordered)} scenario x learner pair(s)"
-    draw_search_tradeoff({title: result["aggregate"]}, parameter, out / "tradeoff.png")
+    draw_search_tradeoff({title: result["aggregate"]}, parameter, out / "tradeoff.png",
+                         choices={title: choice_mark(result["selection"])})
     draw_search_tradeoff({f"{quick}{s}, {LEARNER_NAMES[a]}": cell["rows"]
                           for (s, a), cell in ordered.items()}, parameter,
                          out / "tradeoff_pairs.png")

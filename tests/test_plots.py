@@ -61,6 +61,40 @@ def test_search_and_progress_figures_render(tmp_path):
     assert is_picture(path)
 
 
+def test_the_search_figure_shows_the_rules_decision(tmp_path, monkeypatch):
+    """The panel given a choice shades what is not eligible, left of the threshold, and
+    rings the chosen value's point; the other panel shows neither; the legend names both."""
+    spans, rings, legends = [], [], []
+    axvspan, plot, legend = Axes.axvspan, Axes.plot, plots.Figure.legend
+
+    def spy_axvspan(self, low, high, **kwargs):
+        spans.append((low, high))
+        return axvspan(self, low, high, **kwargs)
+
+    def spy_plot(self, *args, **kwargs):
+        if kwargs.get("markerfacecolor") == "none":
+            rings.append(args)
+        return plot(self, *args, **kwargs)
+
+    def spy_legend(self, handles, labels, **kwargs):
+        legends.extend(labels)
+        return legend(self, handles, labels, **kwargs)
+
+    monkeypatch.setattr(Axes, "axvspan", spy_axvspan)
+    monkeypatch.setattr(Axes, "plot", spy_plot)
+    monkeypatch.setattr(plots.Figure, "legend", spy_legend)
+    rows = [{"value": v, "success_rate": {"mean": s}, "danger_frequency": {"mean": d}}
+            for v, s, d in ((0.0, 0.9, 0.3), (1.0, 0.87, 0.2), (10.0, 0.5, 0.05))]
+    choice = plots.SearchChoice(value=1.0, threshold=0.85, label="provisional choice")
+    path = tmp_path / "tradeoff.png"
+    plots.draw_search_tradeoff({"all": rows, "one": rows}, "lam", path, choices={"all": choice})
+    assert is_picture(path)
+    assert [high for _, high in spans] == [0.85]  # on one panel only
+    assert rings == [(0.87, 0.2)]
+    assert "provisional choice" in legends and "not eligible (success too low)" in legends
+    assert legends.count("λ = 1") == 1
+
+
 def test_progress_figure_draws_every_seed_and_intervals_within_range(tmp_path, monkeypatch):
     """Danger near 0 with spread: its interval bars never go below 0, the return's never
     above 0; every seed of every variant has its own faint path."""

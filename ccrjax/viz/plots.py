@@ -7,8 +7,10 @@ canvas, never ``pyplot``: no display needed, no global state touched.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib import colormaps
@@ -173,12 +175,28 @@ def _interval(stats: dict) -> tuple[float, float]:
     return stats["mean"] - stats["ci_low"], stats["ci_high"] - stats["mean"]
 
 
+@dataclasses.dataclass(frozen=True)
+class SearchChoice:
+    """What a search's selection rule decided, drawn on its panel: the success rate below
+    which a value is not eligible (``threshold``), the value chosen, and how the choice
+    is named (``label``: "chosen", or "provisional choice" before every pair exists)."""
+
+    value: float
+    threshold: float
+    label: str = "chosen"
+
+
 def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
-                         path: str | os.PathLike[str], *, dpi: int = 120) -> None:
+                         path: str | os.PathLike[str], *,
+                         choices: dict[str, SearchChoice] | None = None,
+                         dpi: int = 120) -> None:
     """Danger frequency against success rate, one point per searched value with its 95%
     intervals (clipped to [0, 1]), one panel per title in ``panels`` (rows of
     :func:`ccrjax.run.search.search_rows`). Values are told apart by colour, named once in the
-    legend below the panels, so no label covers another."""
+    legend below the panels, so no label covers another. A panel named in ``choices``
+    also shows the rule's decision: the values left of the dashed line (success too far
+    below the reference's) are shaded as not eligible, and the chosen value is ringed."""
+    choices = choices or {}
     titles = list(panels)
     columns = min(3, len(titles))
     rows = -(-len(titles) // columns)
@@ -201,6 +219,8 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
                         yerr=np.array(_interval(danger))[:, None],
                         marker="s" if row["value"] == 0 else "o", capsize=3, linewidth=1,
                         color=colours[row["value"]], label=label if index == 0 else None)
+        if title in choices:
+            _draw_choice(ax, choices[title], panels[title])
         ax.set_xlim(-0.03, 1.03)
         ax.set_ylim(bottom=-0.01)
         ax.set_title(title, fontsize=9)
@@ -208,11 +228,29 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
         ax.set_ylabel("danger frequency (lower is better)", fontsize=8)
         ax.tick_params(labelsize=8)
         ax.grid(alpha=0.3)
-    handles, labels = fig.axes[0].get_legend_handles_labels()
+    handles, labels = [], []
+    for ax in fig.axes:  # the values (named on the first panel), then any choice's marks
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            if label not in labels:
+                handles.append(handle)
+                labels.append(label)
     fig.legend(handles, labels, loc="lower center", ncol=legend_columns, fontsize=8,
                frameon=False, title="mean and 95% CI over seeds", title_fontsize=8)
     fig.tight_layout(rect=(0, legend_height / (3.4 * rows + legend_height), 1, 1))
     save_figure(fig, path)
+
+
+def _draw_choice(ax: Any, choice: SearchChoice, rows: Sequence[dict]) -> None:
+    """The selection rule's threshold and the chosen value on one tradeoff panel."""
+    ax.axvspan(-0.03, choice.threshold, color="0.5", alpha=0.12, linewidth=0,
+               label="not eligible (success too low)")
+    ax.axvline(choice.threshold, color="0.35", linestyle="--", linewidth=0.9)
+    for row in rows:
+        if row["value"] == choice.value:
+            ax.plot(row["success_rate"]["mean"], row["danger_frequency"]["mean"],
+                    marker="o", markersize=15, markerfacecolor="none",
+                    markeredgecolor="black", markeredgewidth=1.2, linestyle="none",
+                    label=choice.label)
 
 
 def _value_colour(index: int, count: int) -> tuple[float, float, float, float]:
