@@ -228,22 +228,26 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
         ax.set_ylabel("danger frequency (lower is better)", fontsize=8)
         ax.tick_params(labelsize=8)
         ax.grid(alpha=0.3)
-    handles, labels = [], []
-    for ax in fig.axes:  # the values (named on the first panel), then any choice's marks
+    entries: dict[str, Any] = {}
+    for ax in fig.axes:  # the values (named on the first panel) and any choice's marks
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            if label not in labels:
-                handles.append(handle)
-                labels.append(label)
+            entries.setdefault(label, handle)
+    marks = {NOT_ELIGIBLE, *(choice.label for choice in choices.values())}
+    labels = sorted(entries, key=lambda label: label in marks)  # the values first
+    handles = [entries[label] for label in labels]
     fig.legend(handles, labels, loc="lower center", ncol=legend_columns, fontsize=8,
                frameon=False, title="mean and 95% CI over seeds", title_fontsize=8)
     fig.tight_layout(rect=(0, legend_height / (3.4 * rows + legend_height), 1, 1))
     save_figure(fig, path)
 
 
+NOT_ELIGIBLE = "not eligible (success too low)"
+
+
 def _draw_choice(ax: Any, choice: SearchChoice, rows: Sequence[dict]) -> None:
     """The selection rule's threshold and the chosen value on one tradeoff panel."""
     ax.axvspan(-0.03, choice.threshold, color="0.5", alpha=0.12, linewidth=0,
-               label="not eligible (success too low)")
+               label=NOT_ELIGIBLE)
     ax.axvline(choice.threshold, color="0.35", linestyle="--", linewidth=0.9)
     for row in rows:
         if row["value"] == choice.value:
