@@ -91,7 +91,7 @@ def test_the_search_figure_shows_the_rules_decision(tmp_path, monkeypatch):
     assert is_picture(path)
     assert [high for _, high in spans] == [0.85]  # on one panel only
     assert rings == [(0.87, 0.2)]
-    assert "provisional choice" in legends and "not eligible (success too low)" in legends
+    assert "provisional choice" in legends and plots.NOT_ELIGIBLE in legends
     assert legends.count("λ = 1") == 1
 
 

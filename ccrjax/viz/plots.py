@@ -241,7 +241,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
     save_figure(fig, path)
 
 
-NOT_ELIGIBLE = "not eligible (success too low)"
+NOT_ELIGIBLE = "not eligible (low success)"
 
 
 def _draw_choice(ax: Any, choice: SearchChoice, rows: Sequence[dict]) -> None:
