@@ -20,7 +20,8 @@ exact plain runs). Each finished program's cell is written to
 plain runs' return plateaued, wall time, device, commit); a re-run skips the cells made
 with the same settings. Then: ``search.json`` (everything, and the selected value),
 ``search.md`` (a table per scenario and learner, the averages over them, the choice),
-``tradeoff.png`` (danger against success per value, averaged over the 9 pairs) and
+``tradeoff.png`` (danger against success per value, averaged over the 9 pairs, with the rule's
+threshold and choice marked) and
 ``tradeoff_pairs.png`` (one panel per pair).
 """
 
