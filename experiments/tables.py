@@ -25,9 +25,9 @@ seed alone (the lambda search's strong-wind IDDPG program, 21 CCR runs of 3M ste
 in 2h15m on 2026-11-23: about 7,800 in all). The grid is 30 runs of 3,000,000 steps per
 scenario and learner, so on that CPU it would take about 10 h (IDDPG, at that program's rate)
 + at least 9 h (MADDPG) + at least 180 h (MAAC, both at one seed's rate): it is meant for a
-GPU (an H100 trains MADDPG at about 460,000 environment steps per second over 3 vmapped
-seeds, MAAC at about 80,000). Cells are resumable across invocations, so the grid can be
-spread over several; the program in
+GPU (one seed on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG about 156,000 and
+MAAC about 36,000 environment steps per second). Cells are resumable across invocations, so
+the grid can be spread over several; the program in
 training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
 
