@@ -217,3 +217,32 @@ def test_pictures_show_each_robot_its_danger_and_the_caption(tmp_path):
     assert f"succeeded ({ok})" in labels and f"failed ({3 - ok})" in labels  # the GIF's too
     with Image.open(tmp_path / "e.gif") as gif:
         assert gif.n_frames >= record.num_steps + 1  # a frame per step
+
+
+def test_a_long_caption_is_wrapped_inside_the_picture(tmp_path):
+    """A caption far wider than the axes is wrapped, and every line of the title stays
+    inside the figure, in the PNG and in the GIF (``make train``'s once ran off the left)."""
+    env = CCREnv("turbulence", num_robots=2, num_envs=1, episode_length=3)
+
+    def still(obs, key):
+        return jnp.zeros((2, 2, 1))
+
+    caption = "seed 0's policy (deterministic), an episode drawn for the picture " * 3
+    record = render.record_episode(env, still, jax.random.PRNGKey(0), caption=caption.strip())
+    titles = []
+    original_title = Axes.set_title
+
+    def set_title(self, text, *args, **kwargs):
+        titles.append((self.figure, original_title(self, text, *args, **kwargs)))
+        return titles[-1][1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Axes, "set_title", set_title)
+        render.draw_episode(record, tmp_path / "e.png", dpi=40)
+        render.animate_episode(record, tmp_path / "e.gif", dpi=40)
+    assert len(titles) == 2
+    for figure, text in titles:
+        assert text.get_text().count("\n") >= 3  # the first line, then the caption wrapped
+        figure.canvas.draw()
+        box, frame = text.get_window_extent(), figure.bbox
+        assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and box.y1 <= frame.y1

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -427,17 +428,21 @@ def _outcome_handles(record: EpisodeRecord) -> list[Any]:
 
 
 def _new_figure(
-    record: EpisodeRecord, width: float, legend: float, dpi: int
+    record: EpisodeRecord, width: float, legend: float, dpi: int, title_size: float
 ) -> tuple[Figure, Any, list[Any]]:
     """A figure ``width`` inches wide: equal-aspect axes, then a legend column on the right.
 
     The height follows the data's aspect ratio (within bounds), so that the axes
-    fill their width without empty bands. Returns the figure, the axes with the
-    hazard and target drawn, and their legend handles.
+    fill their width without empty bands; the title (:func:`_title`, at ``title_size``
+    points) is wrapped to the axes' width and the top margin holds its lines. Returns the
+    figure, the axes with the hazard, target and title drawn, and their legend handles.
     """
-    left, right, bottom, top = 0.65, legend + 0.15, 0.5, 0.4  # margins, inches
-    x0, x1, y0, y1 = _extent(record)
+    left, right, bottom = 0.65, legend + 0.15, 0.5  # margins, inches
     axes_width = width - left - right
+    # About 0.55 em per character; a line is 1.25 em high, plus room above and below.
+    title = _title(record, max(20, int(axes_width * 72 / (0.55 * title_size))))
+    top = 0.15 + (title.count("\n") + 1) * 1.25 * title_size / 72
+    x0, x1, y0, y1 = _extent(record)
     axes_height = float(np.clip(axes_width * (y1 - y0) / (x1 - x0), 1.5, 1.2 * width))
     height = axes_height + bottom + top
     fig = Figure(figsize=(width, height), dpi=dpi)
@@ -450,6 +455,7 @@ def _new_figure(
     ax.set_axisbelow(True)
     ax.set_xlabel("x", labelpad=1)
     ax.set_ylabel("y", labelpad=1)
+    ax.set_title(title, fontsize=title_size)
     handles = _draw_hazard(ax, record) + _draw_target(ax, record)
     return fig, ax, handles
 
@@ -473,10 +479,13 @@ def _state_handles(record: EpisodeRecord, used_only: bool = False) -> list[Any]:
     ]
 
 
-def _title(record: EpisodeRecord) -> str:
+def _title(record: EpisodeRecord, width: int) -> str:
+    """The scenario, team and length, then the caption, in lines of at most ``width``
+    characters."""
     name = SCENARIO_TITLES.get(record.scenario, record.scenario)
     text = f"{name}: {record.num_robots} robots, {record.num_steps} steps"
-    return f"{text}\n{record.caption}" if record.caption else text
+    lines = [text, *textwrap.wrap(record.caption, width)] if record.caption else [text]
+    return "\n".join(lines)
 
 
 def robot_colour(robot: int) -> str:
@@ -505,7 +514,7 @@ def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
     its end, ringed in green if the robot ends in the target area (a success) and
     crossed in red if not.
     """
-    fig, ax, handles = _new_figure(record, 9.0, 2.0, dpi)
+    fig, ax, handles = _new_figure(record, 9.0, 2.0, dpi, 10)
     colours = np.array([mcolors.to_rgba(c) for c in record.state_colours])
     positions = record.positions
     several_states = len(record.state_names) > 1
@@ -531,7 +540,6 @@ def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
                markersize=9, linestyle="none", label="end (robot size)"),
     ] + _draw_outcomes(ax, record, 12) + handles
     _add_legend(fig, handles, 2.0, 8)
-    ax.set_title(_title(record), fontsize=10)
     fig.savefig(os.fspath(path_png), dpi=dpi)
 
 
@@ -596,12 +604,11 @@ def animate_episode(record: EpisodeRecord, path_gif: str | os.PathLike[str], *,
         raise ValueError(f"fps must be an integer in [1, 100], got {fps!r}")
     if trail is not None and (isinstance(trail, bool) or not isinstance(trail, int) or trail < 0):
         raise ValueError(f"trail must be None or an integer >= 0, got {trail!r}")
-    fig, ax, handles = _new_figure(record, 6.4, 1.45, dpi)
+    fig, ax, handles = _new_figure(record, 6.4, 1.45, dpi, 9)
     canvas = fig.canvas
     several_states = len(record.state_names) > 1
     _add_legend(fig, _robot_handles(record) + (_state_handles(record) if several_states else [])
                 + [*_outcome_handles(record), *handles], 1.45, 7)
-    ax.set_title(_title(record), fontsize=9)
     colours = [mcolors.to_rgba(c) for c in record.state_colours]
     positions = record.positions
     trails = [ax.plot([], [], color=robot_colour(robot), linewidth=1.0, zorder=3)[0]
