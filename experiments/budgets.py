@@ -42,6 +42,7 @@ from ledger import (
     add_out_options,
     cell_is_current,
     cell_path,
+    check_quick_out,
     device_name,
     duration,
     log,
@@ -222,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{protocol.EVAL_EPISODES})")
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help("the seeds of --seeds"))
-    add_out_options(parser, "budgets", Path("runs/budgets"))
+    add_out_options(parser, "budgets", default_text="runs/budgets")
     add_checkpoint_option(parser)
     return parser
 
@@ -257,9 +258,13 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    settings, ledger = open_experiment(PROG, argv, args.out, args.force,
-                                       lambda: settings_from(args))
-    out = args.out
+    out = args.out or Path("runs/budgets")
+
+    def settings_of() -> Settings:
+        check_quick_out(args.quick, args.out)
+        return settings_from(args)
+
+    settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
                                        f"{len(settings.seeds)} seeds each")
     partial = Partial(out, args.checkpoint_minutes)

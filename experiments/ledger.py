@@ -226,6 +226,14 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
     return settings, ledger
 
 
+def check_quick_out(quick: bool, out: Path | None) -> None:
+    """``--quick`` needs an explicit ``--out``: quick numbers must not land in the folder a
+    real run of the same experiment uses by default (raises :class:`ccrjax.cli.UsageError`)."""
+    if quick and out is None:
+        raise cli.UsageError("--quick needs --out: quick numbers must not mix with a real "
+                             "run's in its default folder")
+
+
 def cell_path(out: Path, scenario: str, algo: str) -> Path:
     """Where the cell of one scenario and learner is kept (the searches, the budgets)."""
     return out / "cells" / f"{scenario}-{algo}.json"

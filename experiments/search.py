@@ -43,6 +43,7 @@ from ledger import (
     add_out_options,
     cell_is_current,
     cell_path,
+    check_quick_out,
     device_name,
     duration,
     log,
@@ -304,6 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or Path("runs/search") / args.variant
 
     def settings_of() -> Settings:
+        check_quick_out(args.quick, args.out)
         settings = settings_from(args)
         for scenario in settings.scenarios:  # every configuration validated before compiling
             for algo in settings.algos:

@@ -76,6 +76,7 @@ from ledger import (
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
+    check_quick_out,
     device_name,
     duration,
     log,
@@ -900,9 +901,7 @@ def main(argv: list[str] | None = None) -> int:
     sources: dict[str, str] = {}
 
     def settings_of() -> Settings:
-        if args.quick and args.out is None:
-            raise cli.UsageError("--quick needs --out: quick numbers must not mix with a "
-                                 "real grid's")
+        check_quick_out(args.quick, args.out)
         fields: dict[str, Any] = dict(QUICK, quick=True) if args.quick else {}
         if args.steps is not None:
             fields["steps"] = args.steps

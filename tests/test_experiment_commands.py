@@ -129,9 +129,18 @@ def test_committed_results_need_force(search, tables, budgets, tmp_path, capsys,
     assert not (results / "search" / "sub").exists()
 
 
+def test_quick_mode_needs_its_own_out(search, tables, budgets, tmp_path, capsys, monkeypatch):
+    """Quick numbers never land in the folder a real run of the experiment uses by default
+    (``runs/...``): all three refuse ``--quick`` without ``--out``, and create nothing."""
+    monkeypatch.chdir(tmp_path)
+    refused(search, ["--variant", "ccr", "--quick"], capsys, "--quick needs --out")
+    refused(budgets, ["--quick"], capsys, "--quick needs --out")
+    refused(tables, ["--quick"], capsys, "--quick needs --out")
+    assert not (tmp_path / "runs").exists()
+
+
 def test_tables_refuse_bad_input(tables, tmp_path, capsys, monkeypatch):
     out = str(tmp_path / "never")
-    refused(tables, ["--quick"], capsys, "--quick needs --out")
     refused(tables, ["--quick", "--seeds", "1", "--out", out], capsys, "--seeds")
     refused(tables, ["--lam", "30", "--penalty", "1", "--seed-offset", "95", "--out", out],
             capsys, "selection seeds")
