@@ -790,12 +790,15 @@ def finished(folder: RunFolder, spec: RunSpec) -> bool:
     return isinstance(summary, dict) and summary.get("env_steps_per_seed") == steps[-1]
 
 
-def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int | None:
+def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool,
+                    steps_given: bool = False) -> int | None:
     """``--resume`` of a finished run at its own budget: its last checkpoint's training state
     is read (not its replay buffer) to check that it belongs to this run and can be read;
     then nothing is trained or rewritten, and that checkpoint's replay buffer is dropped
-    unless ``keep_buffer``. Returns ``None`` where the last checkpoint was unreadable and
-    moved aside (said): the run then resumes from the one before, as any stopped run does."""
+    unless ``keep_buffer``. The schedule's rounding notes are printed only where this
+    command named ``--steps`` (``steps_given``): the run's own were said when it ran.
+    Returns ``None`` where the last checkpoint was unreadable and moved aside (said): the
+    run then resumes from the one before, as any stopped run does."""
     program = make_train(spec.train)
     keys = jnp.stack([jax.random.PRNGKey(seed) for seed in spec.seed_list])
     abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
@@ -812,8 +815,8 @@ def resume_finished(folder: RunFolder, spec: RunSpec, keep_buffer: bool) -> int 
         raise UsageError(f"--resume: {error}") from None
     finally:
         checkpoints.close()
-    for note in spec.train.schedule()["notes"]:  # e.g. a larger --steps that rounds to it
-        print(f"note: {note}", file=sys.stderr, flush=True)
+    for note in spec.train.schedule()["notes"] if steps_given else []:  # a larger --steps
+        print(f"note: {note}", file=sys.stderr, flush=True)  # that rounds to the budget run
     print(f"{folder.path} is finished ({spec.train.total_env_steps_run:,} environment steps "
           f"per seed): nothing to train; the folder holds "
           f"{folder_bytes(folder.path) / 2**20:,.1f} MiB. python -m ccrjax.evaluate "
@@ -847,7 +850,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                       file=sys.stderr, flush=True)
                 return INTERRUPTED
             if record is not None and finished(folder, spec):
-                status = resume_finished(folder, spec, args.keep_buffer)
+                status = resume_finished(folder, spec, args.keep_buffer,
+                                         steps_given=args.total_env_steps is not None)
                 if status is not None:
                     return status
             return train_run(folder, spec, record,

@@ -621,6 +621,16 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
         {k: v for k, v in r.items() if k != "wall_time_s"} for r in rows_b]
     status, _, err = run_main(train, ["--out", extended, "--resume", "--steps", 1000], capsys)
     assert_usage_error(status, err, "extended, not shortened")
+    # An extension that rounds says so; resuming the finished run afterwards repeats the
+    # note only where the command names --steps again.
+    rounded = longer + 1
+    resume = ["--out", extended, "--resume", "--no-progress"]
+    status, _, err = run_main(train, [*resume, "--steps", rounded], capsys)
+    assert status == 0 and f"note: --steps {rounded:,} runs as" in err, err
+    status, printed, err = run_main(train, resume, capsys)
+    assert status == 0 and "is finished" in printed and "note:" not in err, err
+    status, printed, err = run_main(train, [*resume, "--steps", rounded], capsys)
+    assert status == 0 and "is finished" in printed and f"--steps {rounded:,} runs as" in err
 
 
 def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished_run, tmp_path):
