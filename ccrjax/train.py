@@ -767,11 +767,25 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
     print(f"policy: {folder.path / policy.name} (ccrjax.load_policy({str(folder.path)!r}, "
           f"seed={seeds[0]}))")
+    stale = earlier_evaluation(folder.path, final_steps)
+    if stale is not None:
+        print(f"evaluation.json evaluated the checkpoint at {stale:,} steps per seed, before "
+              f"this extension: python -m ccrjax.evaluate {folder.path} evaluates the end")
     if importlib.util.find_spec("tensorboard") is not None:
         print(f"TensorBoard: tensorboard --logdir {folder.tensorboard_dir}")
     elif folder.tensorboard_dir.exists():
         print(f"TensorBoard event files: {folder.tensorboard_dir} (to view them: "
               ".venv/bin/pip install -e '.[tensorboard]')")
+
+
+def earlier_evaluation(path: Path, steps: int) -> int | None:
+    """The checkpoint step of ``path``'s ``evaluation.json`` (``python -m ccrjax.evaluate``'s)
+    where it is not ``steps``, the run's end (an extension trained past it); else ``None``."""
+    try:
+        evaluated = json.loads((path / "evaluation.json").read_text())["checkpoint_env_steps"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return int(evaluated) if evaluated != steps else None
 
 
 def finished(folder: RunFolder, spec: RunSpec) -> bool:

@@ -597,10 +597,13 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
     extended = tmp_path / "extended"
     shutil.copytree(finished_run, extended)
     longer = FINAL_STEPS + 400
-    status, _, err = run_main(train, ["--out", extended, "--resume", "--steps", longer,
-                                      "--no-progress", "--keep-buffer"], capsys)
+    (extended / "evaluation.json").write_text(json.dumps({"checkpoint_env_steps": FINAL_STEPS}))
+    status, printed, err = run_main(train, ["--out", extended, "--resume", "--steps", longer,
+                                            "--no-progress", "--keep-buffer"], capsys)
     assert status == 0, err
     assert "extending the run" in err
+    # python -m ccrjax.evaluate's file of the shorter run is named as such.
+    assert f"evaluation.json evaluated the checkpoint at {FINAL_STEPS:,} steps" in printed
     record = json.loads((extended / "config.json").read_text())
     assert record["run"]["train"]["total_env_steps"] == longer
     assert record["extensions"][0]["from_total_env_steps"] == FINAL_STEPS
