@@ -762,7 +762,7 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
         caption=f"seed {seeds[0]}'s policy (deterministic), an episode drawn for the picture "
         "(python -m ccrjax.evaluate --seed N draws others)")
     png, gif = write_episode_pictures(record, folder.path)
-    policy = export_policy(folder.path, program, state.learner, list(seeds))
+    policy = export_policy(folder.path, program, state.learner, list(seeds), state.transform)
     print_summary(summary, folder)
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
     print(f"policy: {folder.path / policy.name} (ccrjax.load_policy({str(folder.path)!r}, "

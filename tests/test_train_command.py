@@ -540,6 +540,13 @@ def test_the_exported_policy_acts_as_the_trained_learner(finished_run, tmp_path)
                                rtol=1e-5, atol=1e-6)  # one team at a time, under vmap
     with pytest.raises(ValueError, match=r"obs must be \[batch, "):
         first_act(obs[..., :-1])  # one feature short
+    # The whole team (here the pessimistic transform's penalty too) evaluates as the run did.
+    key = jax.random.PRNGKey(11)
+    expected = program.evaluate(jax.tree_util.tree_map(lambda x: x[1], restored.state), key)
+    got = ccrjax.load_team(copy, seed=spec.seed_list[1]).evaluate(key)
+    for name, value in expected.items():
+        np.testing.assert_allclose(np.asarray(got[name]), np.asarray(value), rtol=1e-5,
+                                   atol=1e-6, err_msg=name)
     with pytest.raises(ValueError, match="seed must be one of"):
         ccrjax.load_policy(copy, seed=99)
     with pytest.raises(FileNotFoundError, match="no exported policy"):
