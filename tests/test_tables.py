@@ -193,6 +193,10 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys, monkeypatch):
     assert result["selection"]["value"] in (0.1, 1.0)
     assert not result["selection"]["protocol"]  # one pair, quick: provisional
     assert "the quick mode" in result["selection"]["provisional_because"]
+    # tradeoff.png marks the rule's threshold, 5 points of success below the reference's.
+    mark = search.choice_mark(result["selection"])
+    assert mark.threshold == pytest.approx(result["selection"]["reference_constraint"] - 0.05)
+    assert (mark.value, mark.label) == (result["selection"]["value"], "provisional choice")
     assert result["pairs"][0]["device"].startswith("cpu")
     assert_cells_record_their_training(out)
     for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
