@@ -38,11 +38,10 @@ def seed_overlap(seeds: Sequence[int], offset: int, against: Sequence[str]) -> s
     return None
 
 # Environment steps per run, per learner, chosen on the plain learners only
-# (experiments/budgets.py, seeds 200-202, on an H100 before the obstacle's corner fix):
-# at 3M, IDDPG and MADDPG had plateaued in strong wind (from 2.75-3M) and IDDPG on the
-# obstacle (2.5M); MADDPG on the obstacle and both in turbulence were still creeping up.
-# MAAC at 2M had plateaued in turbulence and wind but not on the obstacle. That run was not
-# kept; experiments/results/budgets/ re-checks the current scenarios (same seeds, 3M).
+# (experiments/budgets.py, seeds 200-202; docs/protocol.md tells the history): the re-check
+# on the current scenarios (experiments/results/budgets/, CPU, 3M) found IDDPG levelled in
+# all three scenarios and MADDPG on the obstacle, MADDPG still creeping up in turbulence and
+# strong wind; MAAC's budgets run again with its box9 actions on a GPU before its searches.
 # Every table cell records whether its plain learner's return plateaued at this budget on
 # the tables' seeds, and the README says where it did not.
 BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}

@@ -891,8 +891,14 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
         raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
                              f"({why}): finish it on all 9 pairs at the protocol's settings, "
                              f"or give {option}")
+    budgets = {algo: protocol.budget(algo, None) for algo in ALGOS}
+    if search.get("budgets") != budgets:  # e.g. the protocol's budgets changed after it ran
+        raise cli.UsageError(f"the {variant} search at {path} trained the budgets "
+                             f"{search.get('budgets')}, not the protocol's {budgets}: run it "
+                             "again at the protocol's budgets")
     where = path.parent.name if searches == SEARCHES else str(path.parent)
-    return float(chosen["value"]), f"selected by the search in {where}"
+    fallback = " (its fallback: no value met the rule)" if chosen.get("fallback") else ""
+    return float(chosen["value"]), f"selected by the search in {where}{fallback}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -318,7 +318,8 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
         (searches / variant).mkdir(parents=True)
         (searches / variant / "search.json").write_text(json.dumps({"selection": {
             "value": 3.0, "protocol": protocol_choice,
-            "provisional_because": "3 of 9 pairs missing"}}))
+            "provisional_because": "3 of 9 pairs missing"},
+            "budgets": {algo: tables.protocol.budget(algo, None) for algo in tables.ALGOS}}))
     monkeypatch.setattr(tables, "SEARCHES", searches)
     refused(tables, ["--out", str(tmp_path / "never")], capsys, "not the protocol's choice",
             "3 of 9 pairs missing", "--lam")
@@ -329,6 +330,17 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
             "not the protocol's choice", str(searches / "ccr"))
     assert tables.selected("pessimistic", None, False, searches) == (
         3.0, f"selected by the search in {searches / 'pessimistic'}")
+    # A choice by the fallback says so; a search at budgets the protocol no longer has is
+    # refused (its own flag was written when it ran).
+    record = json.loads((searches / "pessimistic" / "search.json").read_text())
+    record["selection"]["fallback"] = True
+    (searches / "pessimistic" / "search.json").write_text(json.dumps(record))
+    assert tables.selected("pessimistic", None, False, searches)[1].endswith(
+        "(its fallback: no value met the rule)")
+    record["budgets"]["maac"] = 1_000_000
+    (searches / "pessimistic" / "search.json").write_text(json.dumps(record))
+    with pytest.raises(tables.cli.UsageError, match="not the protocol's .* run it again"):
+        tables.selected("pessimistic", None, False, searches)
     # --quick takes named (quick) searches' provisional choices, else its fixed values.
     assert tables.selected("ccr", None, True, searches) == (
         3.0, f"the provisional choice of the search in {searches / 'ccr'}")
