@@ -767,6 +767,9 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
     print(f"policy: {folder.path / policy.name} (ccrjax.load_policy({str(folder.path)!r}, "
           f"seed={seeds[0]}))")
+    if config.variant == "ccr":  # its policy reads scores that only whole episodes give
+        print(f"team: ccrjax.load_team({str(folder.path)!r}, seed={seeds[0]}) runs whole "
+              "episodes with CCR's model and shared scores")
     stale = earlier_evaluation(folder.path, final_steps)
     if stale is not None:
         print(f"evaluation.json evaluated the checkpoint at {stale:,} steps per seed, before "
