@@ -891,7 +891,7 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
         raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
                              f"({why}): finish it on all 9 pairs at the protocol's settings, "
                              f"or give {option}")
-    budgets = {algo: protocol.budget(algo, None) for algo in ALGOS}
+    budgets = protocol.BUDGETS
     if search.get("budgets") != budgets:  # e.g. the protocol's budgets changed after it ran
         raise cli.UsageError(f"the {variant} search at {path} trained the budgets "
                              f"{search.get('budgets')}, not the protocol's {budgets}: run it "

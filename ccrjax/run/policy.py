@@ -94,9 +94,7 @@ def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], 
     count = len(record["seeds"])
     abstract = jax.tree_util.tree_map(
         lambda leaf: jax.ShapeDtypeStruct((count, *leaf.shape), leaf.dtype), one)
-    state = ocp.StandardCheckpointer().restore(folder / "state", abstract)
-    index = record["seeds"].index(seed)
-    state = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf[index]), state)
+    state = _restore_seed(folder / "state", abstract, record["seeds"].index(seed))
     key = jax.random.PRNGKey(0)  # unused: evaluation actions are deterministic
     expected = (record["num_robots"], record["obs_size"])
 
@@ -115,6 +113,13 @@ def load_policy(run_folder: str | Path, seed: int = 0) -> Callable[[jax.Array], 
         return greedy(obs)
 
     return act
+
+
+def _restore_seed(path: Path, abstract: Any, index: int) -> Any:
+    """Seed ``index``'s slice of the state saved at ``path`` (leaves ``[seeds, ...]``,
+    shaped as ``abstract``)."""
+    state = ocp.StandardCheckpointer().restore(path, abstract)
+    return jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf[index]), state)
 
 
 def _read_export(run_folder: str | Path, seed: int) -> tuple[Path, dict, RunSpec]:
@@ -178,17 +183,14 @@ def load_team(run_folder: str | Path, seed: int = 0) -> Team:
     count = len(record["seeds"])
     keys = jax.random.split(jax.random.PRNGKey(0), count)
     abstract = jax.eval_shape(jax.vmap(program.init), keys)
-    checkpointer = ocp.StandardCheckpointer()
-    learner_state = checkpointer.restore(folder / "state", abstract.learner)
-    transform_state = abstract.transform
+    index = record["seeds"].index(seed)
+    learner_state = _restore_seed(folder / "state", abstract.learner, index)
+    transform_state = abstract.transform  # no leaves: nothing to restore (plain)
     if jax.tree_util.tree_leaves(abstract.transform):
         if not (folder / TRANSFORM_STATE).is_dir():
             raise FileNotFoundError(
                 f"{folder} holds no transform state (exported before ccrjax kept it); "
                 f"python -m ccrjax.evaluate {run_folder} runs its episodes from the checkpoint")
-        transform_state = checkpointer.restore(folder / TRANSFORM_STATE, abstract.transform)
-    index = record["seeds"].index(seed)
-    learner_state, transform_state = jax.tree_util.tree_map(
-        lambda leaf: jnp.asarray(leaf[index]), (learner_state, transform_state))
+        transform_state = _restore_seed(folder / TRANSFORM_STATE, abstract.transform, index)
     return Team(program=program, learner_state=learner_state,
                 transform_state=transform_state, seed=seed)
