@@ -46,6 +46,8 @@ from ledger import (
     device_name,
     duration,
     log,
+    nonfinite_runs,
+    nonfinite_text,
     open_experiment,
     plan_pairs,
     read_json,
@@ -119,6 +121,7 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
         "env_steps": np.asarray(runs.history["env_steps"][0]).tolist(),
         "curves": {m: runs.history[m].tolist() for m in
                    ("return", "success_rate", "danger_frequency", "target_distance")},
+        "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
@@ -176,6 +179,10 @@ def budgets_markdown(result: dict[str, Any]) -> str:
             f"{format_mean_ci(final_stats(cell, 'danger_frequency'), True, digits=1)} | "
             f"{duration(cell['train_s'] + cell['compile_s'])} on {cell['device']} at "
             f"`{cell['commit']}` |")
+    skipped = [line for cell in result["cells"]
+               for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
+    runs = sum(len(cell["seeds"]) for cell in result["cells"])
+    lines += ["", nonfinite_text(skipped, f"the {runs} runs")]
     return "\n".join(lines) + "\n"
 
 

@@ -47,6 +47,8 @@ from ledger import (
     device_name,
     duration,
     log,
+    nonfinite_runs,
+    nonfinite_text,
     open_experiment,
     plan_pairs,
     read_json,
@@ -104,6 +106,7 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
         "rows": search_rows(runs, values, grid_values, seeds),
         "env_steps": runs.history["env_steps"][0].tolist(), "history": history,
         "plain_return_plateau": levelled,
+        "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
@@ -235,6 +238,8 @@ def search_markdown(result: dict) -> str:
            f"{result['selection_against_exact_plain']['value']:g}."]
           if result.get("selection_against_exact_plain") else []),
         "",
+        nonfinite_text(result["nonfinite"], f"the {result['runs']} runs"),
+        "",
         "## Averaged over the scenario x learner pairs",
         "",
         *rows_table(result["aggregate"], parameter, chosen["value"]),
@@ -338,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
         "selection_against_exact_plain": (None if plain_cells is None else
                                           selection(settings, ordered, plain_cells)),
         "aggregate": aggregate_rows(settings, ordered),
+        "runs": runs * len(ordered),
+        "nonfinite": [line for (s, a), cell in ordered.items()
+                      for line in nonfinite_runs(cell, f"{s}, {LEARNER_NAMES[a]}")],
         "pairs": [{k: cell[k] for k in ("scenario", "algo", "rows", "plain_return_plateau",
                                          "train_s", "compile_s", "device", "commit")}
                   for cell in ordered.values()],

@@ -33,8 +33,10 @@ from there (:mod:`ccrjax.run.grid_checkpoint`).
 
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
-curves, whether the return plateaued (:func:`ccrjax.run.stats.plateau`), the behaviour
-measurements, and the program's wall time, device and commit. A re-run skips the cells
+curves, whether the return plateaued (:func:`ccrjax.run.stats.plateau`), the first
+iteration whose updates went non-finite per seed (-1: none; such a run is kept, its bad
+updates skipped, and named in ``tables.md``), the behaviour measurements, and the
+program's wall time, device and commit. A re-run skips the cells
 made with the same settings. Every invocation is recorded in ``<out>/invocations.json``
 (:mod:`ledger`). Progress lines estimate the time left across programs. Then:
 
@@ -80,6 +82,8 @@ from ledger import (
     device_name,
     duration,
     log,
+    nonfinite_runs,
+    nonfinite_text,
     open_experiment,
     read_json,
     settings_record,
@@ -209,6 +213,7 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
             "final": {m: [float(x) for x in final[m]] for m in METRICS},
             "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},
             "return_plateau": plateau_or_undetermined(part.history["return"]),
+            "nonfinite_iteration": part.nonfinite_iteration.tolist(),
             "train_seconds_of_program": runs.run_s,
             "compile_seconds_of_program": runs.compile_s,
             "device": device_name(), "commit": git_commit(),
@@ -453,6 +458,7 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
                 cell = cells[(scenario, algo, variant)]
                 record = {"scenario": scenario, "algo": algo, "variant": variant,
                           "seeds": cell["seeds"], "return_plateau": cell["return_plateau"],
+                          "nonfinite_iteration": cell.get("nonfinite_iteration"),
                           "program_seconds": cell["train_seconds_of_program"]
                           + cell["compile_seconds_of_program"],
                           "device": cell["device"], "commit": cell["commit"]}
@@ -489,6 +495,9 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
         "records": records,
         "controllers": [{"scenario": s, "controller": c, **m}
                         for (s, c), m in controllers.items()],
+        "nonfinite": [line for (s, a, v), cell in cells.items() for line in nonfinite_runs(
+            cell, f"{SCENARIO_NAMES[s]}, {LEARNER_NAMES[a]}{VARIANT_SUFFIX[v]}")],
+        "runs": sum(len(cell["seeds"]) for cell in cells.values()),
         "headlines": headlines,
         "paper_headlines": PAPER_HEADLINES,
         "obstacle_distance_ratio_maddpg": obstacle_distance_ratio(cells),
@@ -622,6 +631,10 @@ def tables_markdown(result: dict) -> str:
         "evaluations lies within the 95% interval of the 20% before (passing means the test "
         "found no rise: a slow rise smaller than that interval passes). "
         + _convergence_text(not_levelled, undetermined),
+        "",
+        "### Did training stay finite?",
+        "",
+        nonfinite_text(result["nonfinite"], f"the {result['runs']} runs"),
         "",
         "### Aggregates over the 9 scenario x learner pairs (rliable)",
         "",

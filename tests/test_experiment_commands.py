@@ -608,3 +608,42 @@ def test_an_experiment_stopped_by_ctrl_c_says_what_it_kept_in_one_line(tmp_path,
         "python experiments/search.py: stopped; the finished programs' cells are kept")
     invocations = json.loads((out / "invocations.json").read_text())
     assert invocations["invocations"][-1]["finished"] is False
+
+
+def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, capsys):
+    """The experiments keep such a run (the program skipped its non-finite updates and
+    trained on from the last finite state): the grid names it, the log says so, and the
+    summaries' sentence lists it; the single-run path still stops on it."""
+    import ledger
+
+    from ccrjax.agents.ddpg import DDPGConfig
+    from ccrjax.training import NonFiniteTraining, TrainConfig
+    from ccrjax.training.grid import GridTraining
+
+    exploding = TrainConfig(  # Adam steps of 1e38: the first update's parameters overflow
+        algo="iddpg", scenario="strong_wind", variant="ccr", num_envs=2, episode_length=10,
+        total_env_steps=120, eval_every=40, eval_episodes=3, learning_starts=40,
+        learner=DDPGConfig(batch_size=16, actor_hidden=(8,), critic_hidden=(8,),
+                           update_every=10, actor_lr=1e38, critic_lr=1e38))
+    training = GridTraining(exploding, [3, 4], {"lam": [0.0, 30.0]})
+    runs = ledger.Partial(tmp_path, minutes=1e6).train(training, "exploding")
+    assert runs.nonfinite_iteration.tolist() == [1, 1]  # iteration 0 only fills the buffer
+    assert np.all(np.isfinite(runs.history["return"]))  # evaluated, from finite parameters
+    assert "exploding: 2 of 2 runs had non-finite updates, skipped (seed, first iteration): " \
+        "(3, 1), (4, 1)" in capsys.readouterr().err
+    assert runs.select(np.array([False, True])).nonfinite_iteration.tolist() == [1]
+    with pytest.raises(NonFiniteTraining, match=r"iteration 1 \(seed 3\)"):
+        runs.raise_if_nonfinite()
+    # What the summaries say, for a search's cell, a table's, and one stored before.
+    search_cell = {"parameter": "lam", "grid_seeds": [100, 101, 100, 101],
+                   "grid_values": [0.0, 0.0, 3.0, 3.0], "nonfinite_iteration": [-1, -1, -1, 7]}
+    table_cell = {"seeds": [0, 1], "nonfinite_iteration": [-1, -1]}
+    assert ledger.nonfinite_runs(search_cell, "wind, MADDPG") == [
+        "wind, MADDPG, lam 3, seed 101, from iteration 7"]
+    assert ledger.nonfinite_runs(table_cell, "x") == []
+    assert ledger.nonfinite_runs({"seeds": [0, 1]}, "x") == []  # made before: all finite
+    assert ledger.nonfinite_text([], "the 4 runs") == "Every update of the 4 runs stayed finite."
+    text = ledger.nonfinite_text(["wind, MADDPG, lam 3, seed 101, from iteration 7"],
+                                 "the 4 runs")
+    assert text.startswith("1 of the 4 runs had non-finite updates, skipped")
+    assert text.endswith("wind, MADDPG, lam 3, seed 101, from iteration 7.")

@@ -58,8 +58,10 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
     text = (out / "tables.md").read_text()
     for heading in ("Table I: dangerous-behaviour frequency", "Table II: success rate",
                     "headline figures", "Scorecard", "Aggregates over the 9",
-                    "Did the plain learners converge?", "Dangerous robot-steps during training"):
+                    "Did the plain learners converge?", "Dangerous robot-steps during training",
+                    "Did training stay finite?"):
         assert heading in text
+    assert "Every update of the 54 runs stayed finite." in text  # 27 cells x 2 seeds
     assert "MADDPG+CCR" in text and "(40.92%)" in text  # the paper's number beside ours
     assert "go-to-goal (reference)" in text and "oracle (reference)" in text
     result = json.loads((out / "tables.json").read_text())
@@ -77,6 +79,7 @@ def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run
             if record[metric]["ci_low"] is not None:
                 assert 0.0 <= record[metric]["ci_low"] <= record[metric]["ci_high"] <= 1.0
         assert "plateaued" in record["return_plateau"]
+        assert record["nonfinite_iteration"] == [-1, -1]
         assert record["device"].startswith("cpu") and record["program_seconds"] > 0
         if record["variant"] == "ccr":
             assert set(record["danger_frequency"]["welch"]) == {"plain", "pessimistic"}
@@ -202,6 +205,9 @@ def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys, monkeypatch):
     for name in ("search.md", "tradeoff.png", "tradeoff_pairs.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
     assert "**Quick mode**" in (out / "search.md").read_text()
+    runs = len(json.loads((out / "cells" / "turbulence-iddpg.json").read_text())["grid_seeds"])
+    assert result["runs"] == runs and result["nonfinite"] == []
+    assert f"Every update of the {runs} runs stayed finite." in (out / "search.md").read_text()
     capsys.readouterr()
     assert search.main(argv) == 0
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
@@ -228,6 +234,8 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert cell["checks"][-1]["budget"] == cell["env_steps"][-1]
     assert cell["plateaued_at_budget"] == cell["checks"][-1]["plateaued"]
     assert cell["device"].startswith("cpu")
+    assert cell["nonfinite_iteration"] == [-1, -1, -1]
+    assert "Every update of the 3 runs stayed finite." in (out / "budgets.md").read_text()
     assert_cells_record_their_training(out)
     for name in ("budgets.md", "curves_iddpg.png", "invocations.json"):
         assert (out / name).stat().st_size > 0

@@ -174,6 +174,10 @@ class GridRuns:
     history: dict[str, np.ndarray]  # [G, evaluations + 1] per metric (and env_steps)
     policy: Any  # (learner state, transform state), leaves [G, ...]
     episodes: dict[str, np.ndarray] | None  # recorded evaluation episodes, leaves [G, ...]
+    # [G] the first iteration whose updates went non-finite, -1 where none: that
+    # iteration's updates were skipped (the learner kept its last finite state), as were
+    # those of every later iteration that went non-finite.
+    nonfinite_iteration: np.ndarray
     compile_s: float
     run_s: float
 
@@ -193,7 +197,15 @@ class GridRuns:
             policy=jax.tree_util.tree_map(lambda x: x[index], self.policy),
             episodes=None if self.episodes is None
             else {k: v[index] for k, v in self.episodes.items()},
+            nonfinite_iteration=self.nonfinite_iteration[index],
         )
+
+    def raise_if_nonfinite(self) -> None:
+        """Raises :class:`ccrjax.training.program.NonFiniteTraining` naming the earliest
+        run (seed and iteration) whose update went non-finite."""
+        found = first_nonfinite(self.nonfinite_iteration, self.seeds)
+        if found is not None:
+            raise NonFiniteTraining(found.message())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -327,8 +339,10 @@ class GridTraining:
         """Trains every entry (from ``resume`` if given) and returns the results.
 
         ``after_chunk(progress)`` is called after every chunk but the last; the state it
-        sees is donated to the next chunk when it returns, so it must not keep it. Raises
-        :class:`ccrjax.training.program.NonFiniteTraining` if an entry went non-finite.
+        sees is donated to the next chunk when it returns, so it must not keep it. An entry
+        whose update went non-finite trains on from its last finite state (the program
+        skips such updates) and :attr:`GridRuns.nonfinite_iteration` says where; the
+        caller decides (:meth:`GridRuns.raise_if_nonfinite` stops).
         """
         began = time.perf_counter()
         size = self.num_runs
@@ -346,13 +360,11 @@ class GridTraining:
                 after_chunk(GridProgress(state, history,
                                          earlier_s + time.perf_counter() - began))
         out = fetch(self._finish.apply(state), size)
-        found = first_nonfinite(out["nonfinite"], self.seeds)
-        if found is not None:
-            raise NonFiniteTraining(found.message())
         return GridRuns(config=self.config, seeds=self.seeds, params=self.params,
                         history={k: np.stack([point[k] for point in history], axis=1)
                                  for k in history[0]},
                         policy=out["policy"], episodes=out.get("episodes"),
+                        nonfinite_iteration=np.asarray(out["nonfinite"], np.int64),
                         compile_s=self.compile_s,
                         run_s=earlier_s + time.perf_counter() - began)
 
@@ -366,11 +378,14 @@ def train_grid(
     record_key: jax.Array | None = None,
     log=None,
 ) -> GridRuns:
-    """Compiles and runs a :class:`GridTraining` (see there)."""
+    """Compiles and runs a :class:`GridTraining` (see there); raises
+    :class:`ccrjax.training.program.NonFiniteTraining` if a run's update went non-finite."""
     training = GridTraining(config, seeds, params, record_episodes=record_episodes,
                             record_key=record_key)
     compile_s = training.compile()
     if log:
         log(f"  compiled in {compile_s:.1f} s ({training.num_devices} device(s)); "
             f"training {len(training.seeds)} run(s) ...")
-    return training.run()
+    runs = training.run()
+    runs.raise_if_nonfinite()
+    return runs
