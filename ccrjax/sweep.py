@@ -35,6 +35,8 @@ from ccrjax.run.search import (
     DEFAULT_VALUES,
     REFERENCE_TEXT,
     SEARCHED_PARAMETER,
+    nonfinite_runs,
+    nonfinite_text,
     search_grid,
     search_rows,
 )
@@ -127,6 +129,8 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         "devices": [f"{d.platform}:{d.device_kind}" for d in jax.devices()],
         "command": " ".join([PROG, *sys.argv[1:]]), "commit": commit,
         "rows": search_rows(runs, values, grid_values, seeds),
+        "grid_seeds": grid_seeds, "grid_values": grid_values,
+        "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
     }
     write_atomic(args.out / "sweep.json", json.dumps(result, indent=2) + "\n")
     write_atomic(args.out / "sweep.md", sweep_table(result))
@@ -159,7 +163,9 @@ def sweep_table(result: dict[str, Any]) -> str:
             ("danger_frequency", True), ("success_rate", True), ("return", False),
             ("hazard_distance", False))]
         lines.append(f"| {row['value']:g} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    skipped = nonfinite_runs(result, f"{result['algo']} + {result['variant']}")
+    runs = len(result["rows"]) * len(result["rows"][0]["seeds"])
+    return "\n".join([*lines, "", nonfinite_text(skipped, f"the {runs} runs")]) + "\n"
 
 
 def draw_tradeoff(result: dict[str, Any], path: Path) -> None:

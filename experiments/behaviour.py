@@ -76,6 +76,7 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
         analyses[variant] = arrival_analysis(recorded, reach)
         results[variant] = {
             "final_eval": {k: [float(x) for x in v] for k, v in runs.final.items()},
+            "nonfinite_iteration": runs.nonfinite_iteration.tolist(),  # -1: all finite
             "danger_frequency": float(recorded["danger"].mean()),
         }
     per_rank = []

@@ -46,8 +46,6 @@ from ledger import (
     device_name,
     duration,
     log,
-    nonfinite_runs,
-    nonfinite_text,
     open_experiment,
     plan_pairs,
     read_json,
@@ -58,7 +56,7 @@ from ledger import (
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.search import summarise
+from ccrjax.run.search import nonfinite_runs, nonfinite_text, summarise
 from ccrjax.run.stats import format_mean_ci, plateau, plateau_or_undetermined
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining

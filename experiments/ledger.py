@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import numpy as np
 import protocol
 
 from ccrjax import cli
@@ -75,11 +74,9 @@ class Partial:
         runs whose updates went non-finite are kept (the program skipped those updates) and
         named in the log."""
         runs = train_resumably(training, self.folder(name), self.minutes * 60.0, log)
-        bad = np.flatnonzero(runs.nonfinite_iteration >= 0)
-        if bad.size:
-            log(f"  {name}: {bad.size} of {len(runs.seeds)} runs had non-finite updates, "
-                "skipped (seed, first iteration): " + ", ".join(
-                    f"({runs.seeds[i]}, {runs.nonfinite_iteration[i]})" for i in bad))
+        note = runs.nonfinite_note()
+        if note:
+            log(f"  {name}: {note}")
         return runs
 
     def discard(self, name: str) -> None:
@@ -160,32 +157,6 @@ def cell_budget(cell: dict[str, Any]) -> int | None:
     while isinstance(steps, list) and steps and isinstance(steps[-1], list):
         steps = steps[-1]
     return int(steps[-1]) if steps else None
-
-
-def nonfinite_runs(cell: dict[str, Any], label: str) -> list[str]:
-    """The runs of a stored cell whose updates went non-finite (skipped by the program, the
-    learner keeping its last finite state), one line each: ``label``, the searched value
-    where the cell has one, the seed and the first such iteration. A cell written before
-    these were recorded (``nonfinite_iteration`` absent) has none: a non-finite run then
-    stopped its program, and no cell was written."""
-    iterations = cell.get("nonfinite_iteration") or []
-    seeds = cell.get("grid_seeds") or cell.get("seeds") or []
-    values = cell.get("grid_values")
-    found = []
-    for index, iteration in enumerate(iterations):
-        if iteration >= 0:
-            value = f" {cell['parameter']} {values[index]:g}," if values else ""
-            found.append(f"{label},{value} seed {seeds[index]}, from iteration {iteration}")
-    return found
-
-
-def nonfinite_text(lines: list[str], runs: str) -> str:
-    """One sentence on ``runs`` (e.g. "the 252 runs"): every update finite, or which runs
-    had non-finite updates skipped (``lines`` from :func:`nonfinite_runs`)."""
-    if not lines:
-        return f"Every update of {runs} stayed finite."
-    return (f"{len(lines)} of {runs} had non-finite updates, skipped (the learner kept its "
-            "last finite state and trained on; docs/protocol.md): " + "; ".join(lines) + ".")
 
 
 def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:

@@ -47,8 +47,6 @@ from ledger import (
     device_name,
     duration,
     log,
-    nonfinite_runs,
-    nonfinite_text,
     open_experiment,
     plan_pairs,
     read_json,
@@ -59,7 +57,14 @@ from ledger import (
 from ccrjax import cli
 from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.search import REFERENCE_NAME, search_grid, search_rows, summarise
+from ccrjax.run.search import (
+    REFERENCE_NAME,
+    nonfinite_runs,
+    nonfinite_text,
+    search_grid,
+    search_rows,
+    summarise,
+)
 from ccrjax.run.selection import select
 from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
 from ccrjax.training import ALGOS, TrainConfig

@@ -82,8 +82,6 @@ from ledger import (
     device_name,
     duration,
     log,
-    nonfinite_runs,
-    nonfinite_text,
     open_experiment,
     read_json,
     settings_record,
@@ -102,6 +100,7 @@ from ccrjax.run.folder import (
     write_atomic,
 )
 from ccrjax.run.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, SCENARIOS
+from ccrjax.run.search import nonfinite_runs, nonfinite_text
 from ccrjax.run.stats import (
     format_mean_ci,
     holm,

@@ -206,6 +206,8 @@ def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
         assert row["return"]["per_seed"][0] != row["return"]["per_seed"][1]
     table = (out / "sweep.md").read_text()
     assert "| 0 |" in table and "| 30 |" in table
+    assert result["nonfinite_iteration"] == [-1, -1, -1, -1]
+    assert "Every update of the 4 runs stayed finite." in table
     assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -3,7 +3,8 @@ x seeds that one program trains, and the per-value summary of its results.
 
 Used by ``python -m ccrjax.sweep`` (one scenario and learner) and
 ``experiments/search.py`` (all of them, with the selection rule of
-:mod:`ccrjax.run.selection`).
+:mod:`ccrjax.run.selection`); the summaries of per-seed values and of runs whose updates
+went non-finite serve every experiment's grid.
 """
 
 from __future__ import annotations
@@ -62,3 +63,30 @@ def search_rows(runs: GridRuns, values: Sequence[float], grid_values: Sequence[f
         rows.append({"value": float(value), "seeds": list(seeds),
                      **{m: summarise(final[m][mask], m) for m in POINT_METRICS}})
     return rows
+
+
+def nonfinite_runs(cell: dict[str, Any], label: str) -> list[str]:
+    """The runs of a grid's record (a search's, a table's or budgets' cell, a sweep's
+    result) whose updates went non-finite (skipped by the program, the learner keeping its
+    last finite state: :attr:`ccrjax.training.grid.GridRuns.nonfinite_iteration`), one line
+    each: ``label``, the searched value where the record has one, the seed and the first
+    such iteration. A cell written before these were recorded (``nonfinite_iteration``
+    absent) has none: a non-finite run then stopped its program, and no cell was written."""
+    iterations = cell.get("nonfinite_iteration") or []
+    seeds = cell.get("grid_seeds") or cell.get("seeds") or []
+    values = cell.get("grid_values")
+    found = []
+    for index, iteration in enumerate(iterations):
+        if iteration >= 0:
+            value = f" {cell['parameter']} {values[index]:g}," if values else ""
+            found.append(f"{label},{value} seed {seeds[index]}, from iteration {iteration}")
+    return found
+
+
+def nonfinite_text(lines: list[str], runs: str) -> str:
+    """One sentence on ``runs`` (e.g. "the 252 runs"): every update finite, or which runs
+    had non-finite updates skipped (``lines`` from :func:`nonfinite_runs`)."""
+    if not lines:
+        return f"Every update of {runs} stayed finite."
+    return (f"{len(lines)} of {runs} had non-finite updates, skipped (the learner kept its "
+            "last finite state and trained on; docs/protocol.md): " + "; ".join(lines) + ".")

@@ -44,7 +44,7 @@ from jax.sharding import PartitionSpec as P
 
 from ccrjax.training.acting import run_episode
 from ccrjax.training.config import TrainConfig, make_env
-from ccrjax.training.program import NonFiniteTraining, first_nonfinite, make_train
+from ccrjax.training.program import make_train
 
 GRID_AXIS = "grid"
 
@@ -200,12 +200,15 @@ class GridRuns:
             nonfinite_iteration=self.nonfinite_iteration[index],
         )
 
-    def raise_if_nonfinite(self) -> None:
-        """Raises :class:`ccrjax.training.program.NonFiniteTraining` naming the earliest
-        run (seed and iteration) whose update went non-finite."""
-        found = first_nonfinite(self.nonfinite_iteration, self.seeds)
-        if found is not None:
-            raise NonFiniteTraining(found.message())
+    def nonfinite_note(self) -> str | None:
+        """A line naming the runs whose updates went non-finite (seed, first iteration),
+        or ``None`` if every update stayed finite."""
+        bad = np.flatnonzero(self.nonfinite_iteration >= 0)
+        if not bad.size:
+            return None
+        return (f"{bad.size} of {len(self.seeds)} runs had non-finite updates, skipped (seed, "
+                "first iteration): " + ", ".join(
+                    f"({self.seeds[i]}, {self.nonfinite_iteration[i]})" for i in bad))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -341,8 +344,7 @@ class GridTraining:
         ``after_chunk(progress)`` is called after every chunk but the last; the state it
         sees is donated to the next chunk when it returns, so it must not keep it. An entry
         whose update went non-finite trains on from its last finite state (the program
-        skips such updates) and :attr:`GridRuns.nonfinite_iteration` says where; the
-        caller decides (:meth:`GridRuns.raise_if_nonfinite` stops).
+        skips such updates) and :attr:`GridRuns.nonfinite_iteration` says where.
         """
         began = time.perf_counter()
         size = self.num_runs
@@ -378,8 +380,8 @@ def train_grid(
     record_key: jax.Array | None = None,
     log=None,
 ) -> GridRuns:
-    """Compiles and runs a :class:`GridTraining` (see there); raises
-    :class:`ccrjax.training.program.NonFiniteTraining` if a run's update went non-finite."""
+    """Compiles and runs a :class:`GridTraining` (see there); ``log`` also names the runs
+    whose updates went non-finite (kept: :attr:`GridRuns.nonfinite_iteration`)."""
     training = GridTraining(config, seeds, params, record_episodes=record_episodes,
                             record_key=record_key)
     compile_s = training.compile()
@@ -387,5 +389,7 @@ def train_grid(
         log(f"  compiled in {compile_s:.1f} s ({training.num_devices} device(s)); "
             f"training {len(training.seeds)} run(s) ...")
     runs = training.run()
-    runs.raise_if_nonfinite()
+    note = runs.nonfinite_note()
+    if log and note:
+        log(f"  {note}")
     return runs
