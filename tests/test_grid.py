@@ -56,6 +56,7 @@ SCRIPT = textwrap.dedent(
 def test_sharded_grid_equals_single_device(subprocess_env):
     env = dict(subprocess_env)
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    env["JAX_PLATFORMS"] = "cpu"  # on a GPU machine the default backend has one device
     done = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True,
                           text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
