@@ -423,6 +423,19 @@ def physical_memory() -> int | None:
         return None
 
 
+def training_memory() -> tuple[int, str] | None:
+    """The memory the training state must fit in, and what holds it: an accelerator's
+    (JAX reports its limit; on a GPU the state lives there), else this machine's."""
+    try:
+        stats = jax.devices()[0].memory_stats()  # None on the CPU
+    except (NotImplementedError, RuntimeError):  # a backend that cannot tell: the host
+        stats = None
+    if stats and stats.get("bytes_limit"):
+        return int(stats["bytes_limit"]), f"the {jax.devices()[0].device_kind}"
+    memory = physical_memory()
+    return None if memory is None else (memory, "this machine")
+
+
 @dataclasses.dataclass
 class Session:
     """A run ready to train (:func:`prepare`): its folder and checkpoints, the program and
@@ -482,11 +495,12 @@ def prepare(folder: RunFolder, spec: RunSpec, record: dict | None,
     keys = jnp.stack([jax.random.PRNGKey(seed) for seed in seeds])
     abstract_state = jax.eval_shape(jax.vmap(program.init), keys)
     size = state_bytes(abstract_state)
-    memory = physical_memory()
-    if memory is not None and 2.2 * size > memory:
+    available = training_memory()
+    if available is not None and 2.2 * size > available[0]:
+        memory, holder = available
         raise UsageError(
             f"the training state of {len(seeds)} seed(s) needs {size / 2**30:.1f} GiB (twice "
-            f"that while training) but this machine has {memory / 2**30:.1f} GiB; use fewer "
+            f"that while training) but {holder} has {memory / 2**30:.1f} GiB; use fewer "
             "--seeds, or a smaller replay buffer (--ddpg-buffer-size / --maac-buffer-size)"
         )
     run_record = spec.to_dict()

@@ -658,3 +658,27 @@ def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished
     (out / "summary.json").write_text(json.dumps(summary))
     (out / "policy" / "policy.json").unlink()
     assert not train.finished(folder, spec)
+
+
+def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training(
+        tmp_path, capsys, monkeypatch):
+    """The memory is the accelerator's where JAX reports one (a GPU holds the training
+    state), else this machine's; a state that does not fit twice gets one line before
+    anything trains, and leaves no run behind."""
+    assert train.training_memory()[1] == "this machine"  # the CPU reports no limit
+
+    class Accelerator:
+        device_kind = "NVIDIA H100 80GB HBM3"
+
+        def memory_stats(self):
+            return {"bytes_limit": 80 * 2**30, "bytes_in_use": 0}
+
+    monkeypatch.setattr(train.jax, "devices", lambda *_: [Accelerator()])
+    assert train.training_memory() == (80 * 2**30, "the NVIDIA H100 80GB HBM3")
+    monkeypatch.undo()
+    monkeypatch.setattr(train, "training_memory", lambda: (2**20, "the tiny device"))
+    out = tmp_path / "too-big"
+    status, _, err = run_main(train, [*TINY, "--out", out], capsys)
+    assert_usage_error(status, err, "needs", "GiB (twice that while training) but the tiny "
+                       "device has 0.0 GiB", "--seeds")
+    assert not (out / "config.json").exists() and not (out / "checkpoints").exists()
