@@ -351,13 +351,18 @@ def discrete_episodes():
         )
         return state, (first, second)
 
-    key = jax.random.PRNGKey(3)
-    jitted = two_episodes(key)
-    first_key, second_key = jax.random.split(key)
-    state, first = unjitted_episode(
-        env, transform, transform.init(env), random_discrete_actions, first_key
-    )
-    state, second = unjitted_episode(env, transform, state, random_discrete_actions, second_key)
+    # On the CPU, where op by op and jitted agree to rounding: on a GPU the moment sums
+    # may be summed in another order alone than fused, and the model's solve amplifies a
+    # 1-ulp difference in the statistics past these tolerances. What is tested is jit.
+    with jax.default_device(jax.devices("cpu")[0]):
+        key = jax.random.PRNGKey(3)
+        jitted = two_episodes(key)
+        first_key, second_key = jax.random.split(key)
+        state, first = unjitted_episode(
+            env, transform, transform.init(env), random_discrete_actions, first_key
+        )
+        state, second = unjitted_episode(env, transform, state, random_discrete_actions,
+                                         second_key)
     return env, transform, jitted, (state, (first, second))
 
 

@@ -159,13 +159,16 @@ def test_a_finished_run_leaves_everything_in_its_folder(finished_run):
 
 
 def test_the_command_trains_what_the_library_trains(finished_run):
-    """The run folder's curves are the pure program's evaluation history."""
+    """The run folder's curves are the pure program's evaluation history (both seeds
+    vmapped, as the command trains them: on a GPU the kernels, and so the rounding, follow
+    the batch's shape)."""
     spec = train.RunSpec.from_dict(RunFolder(finished_run).read_config()["run"])
     program = make_train(spec.train)
-    _, history = jax.jit(program.train)(jax.random.PRNGKey(4))
+    keys = jnp.stack([jax.random.PRNGKey(seed) for seed in (3, 4)])
+    _, history = jax.jit(jax.vmap(program.train))(keys)
     rows = [r for r in read_metrics(finished_run / "metrics.csv") if r["seed"] == 4]
-    np.testing.assert_allclose([r["return"] for r in rows], history["return"], rtol=1e-5)
-    np.testing.assert_array_equal([r["env_steps"] for r in rows], history["env_steps"])
+    np.testing.assert_allclose([r["return"] for r in rows], history["return"][1], rtol=1e-5)
+    np.testing.assert_array_equal([r["env_steps"] for r in rows], history["env_steps"][1])
 
 
 # ---------------------------------------------------------------------------- resuming
@@ -665,7 +668,11 @@ def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training
     """The memory is the accelerator's where JAX reports one (a GPU holds the training
     state), else this machine's; a state that does not fit twice gets one line before
     anything trains, and leaves no run behind."""
-    assert train.training_memory()[1] == "this machine"  # the CPU reports no limit
+    class Host:  # the CPU reports no limit
+        device_kind = "cpu"
+
+        def memory_stats(self):
+            return None
 
     class Accelerator:
         device_kind = "NVIDIA H100 80GB HBM3"
@@ -673,6 +680,8 @@ def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training
         def memory_stats(self):
             return {"bytes_limit": 80 * 2**30, "bytes_in_use": 0}
 
+    monkeypatch.setattr(train.jax, "devices", lambda *_: [Host()])
+    assert train.training_memory() == (train.physical_memory(), "this machine")
     monkeypatch.setattr(train.jax, "devices", lambda *_: [Accelerator()])
     assert train.training_memory() == (80 * 2**30, "the NVIDIA H100 80GB HBM3")
     monkeypatch.undo()
