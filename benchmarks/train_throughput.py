@@ -2,6 +2,7 @@
 
     python benchmarks/train_throughput.py            # table
     python benchmarks/train_throughput.py --json     # one JSON object per line
+    python benchmarks/train_throughput.py --algos maddpg --seeds 20   # a grid program's shape
 
 For each learner and variant it compiles ``TrainProgram.run`` (rollout of every
 training environment through the transform, replay insertion, learner updates, all
@@ -12,7 +13,9 @@ second, learner updates per second, the arithmetic of one update (matrix-multipl
 FLOPs) with the rate it implies, so the CPU's utilisation can be judged, and each
 variant's time per step relative to the first variant's (with ``--variants plain
 ccr``: CCR's overhead). Learning starts at once (``learning_starts=0``) so every
-measured iteration includes its updates.
+measured iteration includes its updates. With ``--seeds N`` the program trains N seeds at
+once (``vmap``), as the experiments' grid programs do (20 or 21 runs); the rates are then
+given per seed and for all seeds together.
 """
 
 from __future__ import annotations
@@ -31,27 +34,43 @@ from ccrjax.run.folder import git_commit
 from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
-def compiled_run(algo: str, variant: str, scenario: str, iterations: int):
-    """The compiled ``run`` of ``iterations`` iterations, a state to feed it, and the config."""
+def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds: int = 1):
+    """The compiled ``run`` of ``iterations`` iterations (of ``seeds`` seeds at once when
+    more than one), a state to feed it, and the config."""
     config = TrainConfig(algo=algo, scenario=scenario, variant=variant, learning_starts=0)
     program = make_train(config)
+
+    def one_run(state):
+        return program.run(state, iterations)
+
+    if seeds == 1:
+        init, step = program.init, one_run
+        key = jax.random.PRNGKey(0)
+    else:
+        init, step = jax.vmap(program.init), jax.vmap(one_run)
+        key = jnp.stack([jax.random.PRNGKey(seed) for seed in range(seeds)])
     # Every leaf its own buffer (the initial targets share their online networks').
-    state = jax.tree_util.tree_map(jnp.copy, program.init(jax.random.PRNGKey(0)))
+    state = jax.tree_util.tree_map(jnp.copy, init(key))
     # The state is donated: a long run carries it from chunk to chunk in place, where an
     # undonated call would first copy the whole replay buffer.
-    run = jax.jit(program.run, static_argnums=1, donate_argnums=0)
+    jitted = jax.jit(step, donate_argnums=0)
+
+    def run(state, _iterations):
+        return jitted(state)
+
     start = time.perf_counter()
     state, _ = run(state, iterations)  # compiles, then fills the buffer a little
     jax.block_until_ready(state)
     return program, config, run, state, time.perf_counter() - start
 
 
-def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int):
+def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int,
+            seeds: int = 1):
     """One row per variant; variants are timed in turns (ABAB...), so that the machine's
     drift affects them alike, and each row gets the median, over rounds, of its time over the
     first variant's in the same round (``time_vs_<first>``, with quartiles: CCR's overhead
     when the first variant is plain)."""
-    setups = {v: compiled_run(algo, v, scenario, iterations) for v in variants}
+    setups = {v: compiled_run(algo, v, scenario, iterations, seeds) for v in variants}
     states = {v: setup[3] for v, setup in setups.items()}
     times: dict[str, list[float]] = {v: [] for v in variants}
     for _ in range(repeats):
@@ -75,10 +94,13 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
             "algo": algo,
             "variant": variant,
             "scenario": scenario,
+            "seeds": seeds,  # trained at once; the rates below are per seed
             "env_steps_per_s": iterations * config.steps_per_iteration / median,
+            "env_steps_per_s_all_seeds": seeds * iterations * config.steps_per_iteration
+            / median,
             "updates_per_s": updates / median,
             "gflop_per_update": flops / 1e9,
-            "gflop_per_s": flops * updates / median / 1e9,
+            "gflop_per_s": seeds * flops * updates / median / 1e9,
             f"time_vs_{first}": statistics.median(ratios),
             f"time_vs_{first}_quartiles": [quartiles[0], quartiles[2]],
             "median_s": median,
@@ -104,31 +126,41 @@ def main(argv: list[str] | None = None) -> int:
                         help="training iterations per timed call (default: %(default)s)")
     parser.add_argument("--repeats", type=cli.positive_int, default=5,
                         help="timed calls; the median is reported (default: %(default)s)")
+    parser.add_argument("--seeds", type=cli.int_in(1, 1024), default=1,
+                        help="seeds trained at once in one vmapped program, as the "
+                        "experiments' grids do (default: %(default)s)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object per line instead of a table")
     args = parser.parse_args(argv)
 
     rows = []
     for algo in args.algos:
-        for row in measure(algo, args.variants, args.scenario, args.iterations, args.repeats):
+        for row in measure(algo, args.variants, args.scenario, args.iterations, args.repeats,
+                           args.seeds):
             rows.append(row)
             if args.json:
                 print(json.dumps(row), flush=True)
     if not args.json:
         print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__} · "
               f"commit {git_commit()[:12]}")
-        print(f"one seed, {args.scenario}, default learner settings, learning from the first "
+        seeds = ("one seed" if args.seeds == 1 else
+                 f"{args.seeds} seeds in one vmapped program (env steps/s and updates/s per "
+                 "seed; 'all seeds': together; GFLOP/s: all seeds)")
+        print(f"{seeds}, {args.scenario}, default learner settings, learning from the first "
               "step (the rate of a run after its warm-up)")
         first = args.variants[0]
+        together = f" {'all seeds':>12}" if args.seeds > 1 else ""
         header = (
-            f"{'learner':8} {'variant':12} {'env steps/s':>12} {'updates/s':>10} "
+            f"{'learner':8} {'variant':12} {'env steps/s':>12}{together} {'updates/s':>10} "
             f"{'GFLOP/upd':>10} {'GFLOP/s':>8} {'time vs ' + first:>14} {'quartiles':>13}"
         )
         print(header)
         print("-" * len(header))
         for row in rows:
+            all_seeds = (f" {row['env_steps_per_s_all_seeds']:12,.0f}" if args.seeds > 1
+                         else "")
             print(
-                f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f} "
+                f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f}{all_seeds} "
                 f"{row['updates_per_s']:10.1f} {row['gflop_per_update']:10.2f} "
                 f"{row['gflop_per_s']:8.1f} {row['time_vs_' + first]:14.3f} "
                 f"{row['time_vs_' + first + '_quartiles'][0]:6.3f}-"
