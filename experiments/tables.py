@@ -17,18 +17,19 @@ is the pessimistic transform with penalty 0, exactly), and CCR; each trains all 
 runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one program trains,
 the next one compiles.
 
-Cost. Measured per seed on this project's 2-core CPU, with nothing beside it
-(``benchmarks/train_throughput.py --repeats 3``, hidden obstacle, median of 3, 2026-11-24,
-commit ``8ee8675``): IDDPG about 12,500, MADDPG about 8,400 and MAAC about 420 environment steps
-per second. A program of many vmapped runs trains fewer steps per second in all than one
-seed alone (the lambda search's strong-wind IDDPG program, 21 CCR runs of 3M steps, trained
-in 2h15m on 2026-11-23: about 7,800 in all). The grid is 30 runs of 3,000,000 steps per
-scenario and learner, so on that CPU it would take about 10 h (IDDPG, at that program's rate)
-+ at least 9 h (MADDPG) + at least 180 h (MAAC, both at one seed's rate): it is meant for a
-GPU (one seed on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG about 156,000 and
-MAAC about 36,000 environment steps per second). Cells are resumable across invocations, so
-the grid can be spread over several; the program in
-training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
+Cost, measured on this project's 2-core CPU with nothing beside it. A program of many
+vmapped runs trains fewer steps per second in all than one seed alone
+(``benchmarks/train_throughput.py``, hidden obstacle: one seed, 2026-11-24, commit
+``8ee8675``, IDDPG about 12,500, MADDPG 8,400 and MAAC 420 environment steps per second;
+10 seeds in one program, ``--seeds 10 --iterations 4 --repeats 3``, 2026-11-25, commit
+``1d34e41``, MADDPG 6,760 and MAAC 344 in all; the lambda search's strong-wind IDDPG
+program, 21 runs of 3M steps, trained in 2h15m on 2026-11-23: about 7,800 in all). The
+grid is 30 runs of 3,000,000 steps per scenario and learner, 270M steps per learner, so on
+that CPU it would take about 10 h (IDDPG) + 11 h (MADDPG) + 218 h (MAAC), about 10 days:
+it is meant for a GPU (one seed on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG
+about 156,000 and MAAC about 36,000 environment steps per second). Cells are resumable
+across invocations, so the grid can be spread over several; the program in training is
+checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
 
 Every finished cell (scenario, learner, variant) is written atomically to
