@@ -270,3 +270,18 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
     assert exit_.value.code == 2 and "--values repeats 1" in capsys.readouterr().err
     assert not (tmp_path / "repeated").exists()
     assert sweep.DEFAULT_VALUES == {v: values for v, (_, values) in protocol.SEARCHED.items()}
+
+
+@pytest.mark.slow
+def test_the_training_benchmark_times_a_grid_shaped_program(subprocess_env):
+    """``benchmarks/train_throughput.py --seeds 2``: two seeds in one program, the rates
+    per seed and for both (a smoke test: the benchmark's own numbers are not asserted)."""
+    process = subprocess.run(
+        [sys.executable, "benchmarks/train_throughput.py", "--algos", "iddpg", "--iterations",
+         "1", "--repeats", "1", "--seeds", "2", "--json"],
+        cwd=ROOT, env=subprocess_env, capture_output=True, text=True, timeout=300)
+    assert process.returncode == 0, process.stderr
+    (row,) = [json.loads(line) for line in process.stdout.splitlines()]
+    assert (row["algo"], row["seeds"], row["iterations"]) == ("iddpg", 2, 1)
+    assert row["env_steps_per_s"] > 0
+    assert row["env_steps_per_s_all_seeds"] == pytest.approx(2 * row["env_steps_per_s"])
