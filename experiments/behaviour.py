@@ -46,6 +46,7 @@ import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit
+from ccrjax.run.search import nonfinite_log
 from ccrjax.run.stats import mean_ci
 from ccrjax.training import TrainConfig
 from ccrjax.training.grid import train_grid
@@ -72,6 +73,9 @@ def train_and_measure(seeds: list[int], steps: int | None, episodes: int, reach:
         runs = train_grid(config, seeds, params, record_episodes=episodes, record_key=key,
                           log=log)
         log(f"  trained in {runs.run_s:.0f} s")
+        note = nonfinite_log(runs, f"MADDPG {variant}")
+        if note:
+            log(f"  {note}")
         recorded = runs.episodes
         analyses[variant] = arrival_analysis(recorded, reach)
         results[variant] = {

@@ -27,6 +27,7 @@ import protocol
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.grid_checkpoint import discard, train_resumably
+from ccrjax.run.search import nonfinite_log
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.config import make_env
 from ccrjax.training.grid import GridRuns, GridTraining
@@ -74,9 +75,9 @@ class Partial:
         runs whose updates went non-finite are kept (the program skipped those updates) and
         named in the log."""
         runs = train_resumably(training, self.folder(name), self.minutes * 60.0, log)
-        note = runs.nonfinite_note()
+        note = nonfinite_log(runs, name)
         if note:
-            log(f"  {name}: {note}")
+            log(f"  {note}")
         return runs
 
     def discard(self, name: str) -> None:

@@ -630,8 +630,9 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
     runs = ledger.Partial(tmp_path, minutes=1e6).train(training, "exploding")
     assert runs.nonfinite_iteration.tolist() == [1, 1]  # iteration 0 only fills the buffer
     assert np.all(np.isfinite(runs.history["return"]))  # evaluated, from finite parameters
-    assert "exploding: 2 of 2 runs had non-finite updates, skipped (seed, first iteration): " \
-        "(3, 1), (4, 1)" in capsys.readouterr().err
+    assert "2 of the 2 runs had non-finite updates, skipped (the learner kept its last " \
+        "finite state and trained on; docs/protocol.md): exploding, seed 3, from iteration 1; " \
+        "exploding, seed 4, from iteration 1." in capsys.readouterr().err
     assert runs.select(np.array([False, True])).nonfinite_iteration.tolist() == [1]
     # What the summaries say, for a search's cell, a table's, and one stored before.
     search_cell = {"parameter": "lam", "grid_seeds": [100, 101, 100, 101],

@@ -90,3 +90,10 @@ def nonfinite_text(lines: list[str], runs: str) -> str:
         return f"Every update of {runs} stayed finite."
     return (f"{len(lines)} of {runs} had non-finite updates, skipped (the learner kept its "
             "last finite state and trained on; docs/protocol.md): " + "; ".join(lines) + ".")
+
+
+def nonfinite_log(runs: GridRuns, label: str) -> str | None:
+    """The log line naming ``runs``' runs whose updates went non-finite, or ``None``."""
+    lines = nonfinite_runs({"nonfinite_iteration": runs.nonfinite_iteration.tolist(),
+                            "seeds": runs.seeds}, label)
+    return nonfinite_text(lines, f"the {len(runs.seeds)} runs") if lines else None

@@ -200,16 +200,6 @@ class GridRuns:
             nonfinite_iteration=self.nonfinite_iteration[index],
         )
 
-    def nonfinite_note(self) -> str | None:
-        """A line naming the runs whose updates went non-finite (seed, first iteration),
-        or ``None`` if every update stayed finite."""
-        bad = np.flatnonzero(self.nonfinite_iteration >= 0)
-        if not bad.size:
-            return None
-        return (f"{bad.size} of {len(self.seeds)} runs had non-finite updates, skipped (seed, "
-                "first iteration): " + ", ".join(
-                    f"({self.seeds[i]}, {self.nonfinite_iteration[i]})" for i in bad))
-
 
 @dataclasses.dataclass(frozen=True)
 class GridProgress:
@@ -380,16 +370,11 @@ def train_grid(
     record_key: jax.Array | None = None,
     log=None,
 ) -> GridRuns:
-    """Compiles and runs a :class:`GridTraining` (see there); ``log`` also names the runs
-    whose updates went non-finite (kept: :attr:`GridRuns.nonfinite_iteration`)."""
+    """Compiles and runs a :class:`GridTraining` (see there)."""
     training = GridTraining(config, seeds, params, record_episodes=record_episodes,
                             record_key=record_key)
     compile_s = training.compile()
     if log:
         log(f"  compiled in {compile_s:.1f} s ({training.num_devices} device(s)); "
             f"training {len(training.seeds)} run(s) ...")
-    runs = training.run()
-    note = runs.nonfinite_note()
-    if log and note:
-        log(f"  {note}")
-    return runs
+    return training.run()
