@@ -43,7 +43,7 @@ def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds:
     def one_run(state):
         return program.run(state, iterations)
 
-    if seeds == 1:
+    if seeds == 1:  # unbatched, as the one-seed rates were always measured
         init, step = program.init, one_run
         key = jax.random.PRNGKey(0)
     else:
@@ -53,13 +53,9 @@ def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds:
     state = jax.tree_util.tree_map(jnp.copy, init(key))
     # The state is donated: a long run carries it from chunk to chunk in place, where an
     # undonated call would first copy the whole replay buffer.
-    jitted = jax.jit(step, donate_argnums=0)
-
-    def run(state, _iterations):
-        return jitted(state)
-
+    run = jax.jit(step, donate_argnums=0)
     start = time.perf_counter()
-    state, _ = run(state, iterations)  # compiles, then fills the buffer a little
+    state, _ = run(state)  # compiles, then fills the buffer a little
     jax.block_until_ready(state)
     return program, config, run, state, time.perf_counter() - start
 
@@ -77,7 +73,7 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
         for variant in variants:
             run = setups[variant][2]
             start = time.perf_counter()
-            states[variant], _ = run(states[variant], iterations)
+            states[variant], _ = run(states[variant])
             jax.block_until_ready(states[variant])
             times[variant].append(time.perf_counter() - start)
     rows = []

@@ -164,8 +164,8 @@ def sweep_table(result: dict[str, Any]) -> str:
             ("hazard_distance", False))]
         lines.append(f"| {row['value']:g} | " + " | ".join(cells) + " |")
     skipped = nonfinite_runs(result, f"{result['algo']} + {result['variant']}")
-    runs = len(result["rows"]) * len(result["rows"][0]["seeds"])
-    return "\n".join([*lines, "", nonfinite_text(skipped, f"the {runs} runs")]) + "\n"
+    runs = f"the {len(result['grid_seeds'])} runs"
+    return "\n".join([*lines, "", nonfinite_text(skipped, runs)]) + "\n"
 
 
 def draw_tradeoff(result: dict[str, Any], path: Path) -> None:

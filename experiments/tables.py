@@ -18,7 +18,8 @@ runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one
 the next one compiles.
 
 Cost, measured on this project's 2-core CPU with nothing beside it. A program of many
-vmapped runs trains fewer steps per second in all than one seed alone
+vmapped runs trained fewer steps per second in all than one seed alone (measured on
+different days, so the ratio is rough)
 (``benchmarks/train_throughput.py``, hidden obstacle: one seed, 2026-11-24, commit
 ``8ee8675``, IDDPG about 12,500, MADDPG 8,400 and MAAC 420 environment steps per second;
 10 seeds in one program, ``--seeds 10 --iterations 4 --repeats 3``, 2026-11-25, commit
