@@ -134,13 +134,15 @@ def test_training_counts_steps_updates_and_dangerous_steps(tiny_program, separat
         return program.iteration(state)[0], jnp.sum(episode.danger)
 
     state = program.init(keys[1])
-    counts, cumulative = [], [0.0]
+    counts, cumulative, learning_states = [], [0.0], []
     for _ in range(TINY.num_iterations):
         next_state, danger = iteration_and_its_episode(state)
         counts.append(float(danger))
         assert float(next_state.danger_steps) == float(state.danger_steps) + float(danger)
         # Since learning started: episodes collected once the buffer held enough to learn.
         learning = int(state.buffer.size) >= TINY.learning_starts_transitions
+        if learning and float(danger) > 0:
+            learning_states.append(state)
         assert float(next_state.learning_danger_steps) == (
             float(state.learning_danger_steps) + (float(danger) if learning else 0.0)
         )
@@ -151,6 +153,18 @@ def test_training_counts_steps_updates_and_dangerous_steps(tiny_program, separat
     assert float(state.learning_danger_steps) < float(state.danger_steps)
     per_point = np.asarray(cumulative)[:: TINY.iterations_per_eval]
     np.testing.assert_array_equal(history["cumulative_danger_steps"], per_point)
+
+    # The counts stay exact past 2^24 robot-steps, where a float32 count stops adding ones
+    # (5 robots in danger half the time get there after about 6.7M steps).
+    far = 2**24 + 1
+    late = learning_states[0].replace(
+        danger_steps=jnp.asarray(far, state.danger_steps.dtype),
+        learning_danger_steps=jnp.asarray(far, state.learning_danger_steps.dtype),
+    )
+    after, danger = iteration_and_its_episode(late)
+    assert int(danger) > 0
+    assert int(after.danger_steps) == far + int(danger)
+    assert int(after.learning_danger_steps) == far + int(danger)
 
 
 def test_evaluation_runs_the_deterministic_policy(tiny_program):
