@@ -45,6 +45,7 @@ from ccrjax.viz.episode_pictures import (
     PICTURE_KEY,
     record_trained_episode,
     seed_slice,
+    unbroken,
     write_episode_pictures,
 )
 
@@ -122,8 +123,8 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
                                  PICTURE_KEY)
         record = record_trained_episode(
             program, seed_slice(state, 0), key,
-            caption=f"seed {seeds[0]}'s policy (deterministic), an episode drawn from "
-            f"evaluate --seed {seed}")
+            caption=f"seed {seeds[0]}'s policy (deterministic), the picture episode of "
+            f"{unbroken(f'evaluate --seed {seed}')}")
         png, gif = write_episode_pictures(record, folder.path)
         print(f"\npictures: {png}  {gif}")
     return 0

@@ -74,6 +74,7 @@ from ccrjax.viz.episode_pictures import (
     PICTURE_KEY,
     record_trained_episode,
     seed_slice,
+    unbroken,
     write_episode_pictures,
 )
 from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
@@ -369,6 +370,7 @@ class StopRequest:
                      "interrupted while it compiles)",
         "training": "finishing the current chunk, then saving a checkpoint",
         "finishing": "the run has finished; stopping once its pictures and policy are written",
+        "done": "",  # everything is written: the command says so as it exits (:meth:`closing`)
     }
 
     def __init__(self) -> None:
@@ -394,8 +396,18 @@ class StopRequest:
             signal.signal(number, self._previous.get(number, signal.SIG_DFL))
             raise KeyboardInterrupt
         self.signal_name = signal.Signals(number).name
-        print(f"\n{self.signal_name}: {self.WHEN[self.phase]} (press again to stop at once, "
-              "losing the work since the last checkpoint)", file=sys.stderr, flush=True)
+        if self.phase != "done":
+            print(f"\n{self.signal_name}: {self.WHEN[self.phase]} (press again to stop at once, "
+                  "losing the work since the last checkpoint)", file=sys.stderr, flush=True)
+
+    def closing(self, status: int) -> int:
+        """The command's exit status: a request that came after the run's last check (its
+        files all written) still ends it with 130, said in one line."""
+        if status == 0 and self.requested:
+            print(f"stopped by {self.signal_name} after the run finished; everything is written",
+                  file=sys.stderr, flush=True)
+            return INTERRUPTED
+        return status
 
 
 def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
@@ -404,8 +416,9 @@ def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str,
     rows = []
     for index, seed in enumerate(seeds):
         row = {"seed": seed, "env_steps": int(point["env_steps"][index]), "wall_time_s": wall}
-        for name in POINT_METRICS:
-            row[name] = float(point[name][index])
+        for name in POINT_METRICS:  # the counts of robot-steps as the integers they are
+            value = point[name][index]
+            row[name] = int(value) if name in TRAINING_COUNTS else float(value)
         rows.append(row)
     return rows
 
@@ -742,11 +755,8 @@ def _train(folder: RunFolder, spec: RunSpec, record: dict | None, progress_bar: 
               f"python -m ccrjax.evaluate {folder.path} redraws the pictures",
               file=sys.stderr, flush=True)
         return INTERRUPTED
-    if stop.requested:
-        print(f"stopped by {stop.signal_name} after the run finished; everything is written",
-              file=sys.stderr, flush=True)
-        return INTERRUPTED
-    return 0
+    stop.phase = "done"
+    return stop.closing(0)
 
 
 def _eval_scalars(row: dict[str, Any]) -> dict[str, float]:
@@ -768,13 +778,14 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     config = program.config
     label = f"{config.algo} {config.variant}"
     curves.add(label, steps, values)
+    plural = "s" if len(seeds) > 1 else ""
     draw_curves(curves, folder.path / "curves.png",
-                title=f"{config.scenario}: {label}, {len(seeds)} seed(s)")
+                title=f"{config.scenario}: {label}, {len(seeds)} seed{plural}")
     key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
     record = record_trained_episode(
         program, seed_slice(state, 0), key,
-        caption=f"seed {seeds[0]}'s policy (deterministic), an episode drawn for the picture "
-        "(python -m ccrjax.evaluate --seed N draws others)")
+        caption=f"seed {seeds[0]}'s policy (deterministic) in the episode its seed fixes for "
+        f"the picture ({unbroken('python -m ccrjax.evaluate --seed N')} draws others)")
     png, gif = write_episode_pictures(record, folder.path)
     policy = export_policy(folder.path, program, state.learner, list(seeds), state.transform)
     print_summary(summary, folder)
@@ -884,10 +895,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 status = resume_finished(folder, spec, args.keep_buffer,
                                          steps_given=args.total_env_steps is not None)
                 if status is not None:
-                    return status
-            return train_run(folder, spec, record,
-                             progress_bar=(not args.no_progress) and sys.stderr.isatty(),
-                             keep_buffer=args.keep_buffer, stop=stop)
+                    stop.phase = "done"
+                    return stop.closing(status)
+            status = train_run(folder, spec, record,
+                               progress_bar=(not args.no_progress) and sys.stderr.isatty(),
+                               keep_buffer=args.keep_buffer, stop=stop)
+            return stop.closing(status)
         except UsageError as error:
             cli.fail(PROG, str(error))
         except ValueError as error:  # a configuration value the dataclasses refuse

@@ -147,7 +147,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     lines = [
         "# Budgets of the plain learners",
         "",
-        *([protocol.QUICK_NOTE, ""] if settings.get("quick") else []),
+        *([protocol.quick_note(variants=False), ""] if settings.get("quick") else []),
         f"Budget seeds {settings['seeds']}; environment steps per seed: "
         + ", ".join(f"{steps:,} ({algo})" for algo, steps in result["budgets"].items()) + "; "
         f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "

@@ -127,12 +127,16 @@ PLATEAU_WORDS = {True: "yes", False: "**no**",
 # The learners as the experiments' outputs name them; IDDPG is the paper's "DDPG" (one DDPG
 # per robot, its critic seeing only its own observation and action).
 LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC"}
-QUICK_NOTE = ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
-              "hundred to a few thousand steps per run, 4 evaluation episodes. It checks the "
-              "pipeline; no number here measures learning or the scenarios (the reference "
-              "controllers run 10-step episodes too, the plateau checks see a handful of "
-              "evaluations, and the variants barely train, so their rows can coincide: "
-              "pessimistic equal to plain to the digits shown).")
+def quick_note(variants: bool = True) -> str:
+    """The quick mode's warning atop a summary; ``variants``: whether it compares them
+    (the budgets train plain learners only)."""
+    tail = (", and the variants barely train, so their rows can coincide: pessimistic equal "
+            "to plain to the digits shown" if variants else "")
+    return ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
+            "hundred to a few thousand steps per run, 4 evaluation episodes. It checks the "
+            "pipeline; no number here measures learning or the scenarios (the reference "
+            "controllers run 10-step episodes too, the plateau checks see a handful of "
+            f"evaluations{tail}).")
 
 
 def quick_help(seeds: str = "2 seeds unless --seeds") -> str:

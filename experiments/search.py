@@ -219,7 +219,7 @@ def search_markdown(result: dict) -> str:
     lines = [
         f"# Search of {parameter} ({settings['variant']})",
         "",
-        *([protocol.QUICK_NOTE, ""] if settings.get("quick") else []),
+        *([protocol.quick_note(), ""] if settings.get("quick") else []),
         f"Selection seeds {settings['seeds']}; budgets per learner "
         f"{result['budgets']}; evaluation every {settings['eval_every']:,} steps, "
         f"{settings['eval_episodes']} episodes per seed; mean and 95% CI over seeds (Student "

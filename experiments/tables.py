@@ -570,7 +570,7 @@ def tables_markdown(result: dict) -> str:
     lines = [
         "# The paper's Tables I and II, re-run with ccrjax",
         "",
-        *([protocol.QUICK_NOTE, ""] if settings.get("quick") else []),
+        *([protocol.quick_note(), ""] if settings.get("quick") else []),
         f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}) at commit(s) "
         f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
         f"training time add up to {duration(result['programs_seconds'])}. Invocations:",

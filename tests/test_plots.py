@@ -61,6 +61,38 @@ def test_search_and_progress_figures_render(tmp_path):
     assert is_picture(path)
 
 
+def test_a_long_search_panel_title_wraps_inside_the_figure(tmp_path, monkeypatch):
+    """The quick mode's title (its warning first) on a figure of one panel, and the
+    seven values with long labels and the rule's marks in the legend: all inside the figure."""
+    figures = []
+    save = plots.save_figure
+
+    def keep(fig, path, dpi=None):
+        figures.append(fig)
+        save(fig, path, dpi)
+
+    monkeypatch.setattr(plots, "save_figure", keep)
+    rows = [{"value": v, "success_rate": {"mean": s}, "danger_frequency": {"mean": d}}
+            for v, s, d in ((0.0, 0.9, 0.3), (0.0003, 0.9, 0.3), (0.003, 0.9, 0.3),
+                            (0.03, 0.9, 0.3), (1.0, 0.87, 0.2), (3.0, 0.8, 0.1),
+                            (10.0, 0.5, 0.05))]
+    choice = plots.SearchChoice(value=1.0, threshold=0.85, label="provisional choice")
+    title = ("[quick mode: measures nothing] pessimistic: averaged over 9 scenario x learner "
+             "pair(s)")
+    plots.draw_search_tradeoff({title: rows}, "penalty", tmp_path / "tradeoff.png",
+                               choices={title: choice})
+    (fig,) = figures
+    renderer = fig.canvas.get_renderer()
+    (ax,) = fig.axes
+    box = ax.title.get_window_extent(renderer)
+    assert ax.title.get_text().replace("\n", " ") == title
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1, (box, fig.bbox)
+    # The legend below the panel fits as well, however long the values' labels.
+    (legend,) = fig.legends
+    box = legend.get_window_extent(renderer)
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.x1 and box.y0 >= 0, (box, fig.bbox)
+
+
 def test_the_search_figure_shows_the_rules_decision(tmp_path, monkeypatch):
     """The panel given a choice shades what is not eligible, left of the threshold, and
     rings the chosen value's point; the other panel shows neither; the legend names both."""
@@ -130,3 +162,26 @@ def test_progress_figure_draws_every_seed_and_intervals_within_range(tmp_path, m
     for low, high in spans:
         assert high.max() == 0.0 and (low <= high).all()  # clipped: the spread passes 0
     assert lines.count(0.25) == 2 * 3  # a faint path per seed and variant
+
+
+def test_one_seeds_curves_promise_no_band(tmp_path, monkeypatch):
+    """A run of one seed has no interval: no band is drawn and the legend says so, in the
+    singular."""
+    legends, bands = [], []
+    legend, fill_between = plots.Figure.legend, Axes.fill_between
+
+    def spy_legend(self, handles, labels, **kwargs):
+        legends.append((list(labels), kwargs.get("title")))
+        return legend(self, handles, labels, **kwargs)
+
+    def spy_fill_between(self, *args, **kwargs):
+        bands.append(args)
+        return fill_between(self, *args, **kwargs)
+
+    monkeypatch.setattr(plots.Figure, "legend", spy_legend)
+    monkeypatch.setattr(Axes, "fill_between", spy_fill_between)
+    curves = plots.Curves()
+    curves.add("ccr", [0, 100_000], {"success_rate": np.array([[0.0, 0.5]])})
+    plots.draw_curves(curves, tmp_path / "curves.png", metrics=("success_rate",))
+    assert legends == [(["ccr (n=1 seed)"], "one seed: no interval")]
+    assert bands == []

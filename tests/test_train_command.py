@@ -9,6 +9,7 @@ networks), so the program compiles once; the session's compilation cache
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -691,3 +692,19 @@ def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training
     assert_usage_error(status, err, "needs", "GiB (twice that while training) but the tiny "
                        "device has 0.0 GiB", "--seeds")
     assert not (out / "config.json").exists() and not (out / "checkpoints").exists()
+
+
+def test_a_request_after_the_runs_last_check_still_exits_130_saying_all_is_written(capsys):
+    """Ctrl-C in the moment between a finished run's last check and the command's exit: no
+    promise of work still to come, and the command ends with 130 and one closing line."""
+    with train.StopRequest() as stop:
+        stop.phase = "done"
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.requested
+        assert capsys.readouterr().err == ""
+        assert stop.closing(0) == 130
+        assert stop.closing(2) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "stopped by SIGINT after the run finished; everything is written"
+    with train.StopRequest() as stop:
+        assert stop.closing(0) == 0

@@ -167,13 +167,13 @@ def csv_text(rows: Sequence[dict[str, Any]], header: bool = True) -> str:
 
 
 def read_metrics(path: Path) -> list[dict[str, float]]:
-    """The rows of a ``metrics.csv`` as dicts of numbers."""
+    """The rows of a ``metrics.csv`` as dicts of numbers (seeds, steps and the counts of
+    robot-steps as integers; older folders wrote the counts as ``141.0``)."""
     with open(path, encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
-    return [
-        {k: (int(v) if k in ("seed", "env_steps") else float(v)) for k, v in row.items()}
-        for row in rows
-    ]
+    integers = ("seed", "env_steps", *TRAINING_COUNTS)
+    return [{k: (int(float(v)) if k in integers else float(v)) for k, v in row.items()}
+            for row in rows]
 
 
 class RunFolder:

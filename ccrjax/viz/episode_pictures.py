@@ -2,9 +2,9 @@
 
 The episode runs exactly as evaluation does (deterministic policy, the run's own
 transform, so a CCR policy sees the shared emergency scores it was trained
-with), in one fresh environment. Under CCR every robot-step is coloured by its
-CCR state (standby, sensing danger, activated: the paper's blue, yellow and
-pink); otherwise all robots are drawn in one colour.
+with), in one fresh environment. Every robot's path has its own colour; under CCR
+its steps are dotted in the colour of its CCR state (standby, sensing danger,
+activated: the paper's blue, yellow and pink).
 """
 
 from __future__ import annotations
@@ -32,6 +32,12 @@ from ccrjax.viz.render import (
 
 # Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
 PICTURE_KEY = 0x9E3779B1
+
+
+def unbroken(command: str) -> str:
+    """``command`` with no-break spaces, so that a caption wrapped to the picture's width
+    never splits it across lines."""
+    return command.replace(" ", "\u00a0")
 
 def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Array,
                            caption: str = "") -> EpisodeRecord:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import textwrap
 from collections.abc import Sequence
 from typing import Any
 
@@ -97,7 +98,7 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
             mean, low, high = mean_ci_along(per_seed, axis=0, bounds=bounds)
             n = per_seed.shape[0]
             ax.plot(steps, mean, color=colour, linewidth=1.8,
-                    label=f"{label} (n={n} seeds)" if index == 0 else None)
+                    label=f"{label} (n={n} seed{'s' if n > 1 else ''})" if index == 0 else None)
             if n > 1:
                 ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
                 for seed_values in per_seed:
@@ -116,9 +117,12 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
     if handles:  # below the panels, never over a curve
         # The common words once, as the legend's title: the labels stay short enough to
         # sit side by side on any figure width.
+        several = any(values[m].shape[0] > 1 for _, values in curves.series.values()
+                      for m in metrics if m in values)
+        caption = ("mean (bold), 95% CI over seeds (band, clipped to the metric's range), each "
+                   "seed (faint)" if several else "one seed: no interval")
         fig.legend(handles, labels, loc="lower center", ncol=len(handles), fontsize=9,
-                   frameon=False, title="mean (bold), 95% CI over seeds (band, clipped to the "
-                   "metric's range), each seed (faint)", title_fontsize=9)
+                   frameon=False, title=caption, title_fontsize=9)
         fig.tight_layout(rect=(0, 0.15 / rows, 1, 1))
     else:
         fig.tight_layout()
@@ -166,6 +170,8 @@ def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
 
 
 PARAMETER_SYMBOLS = {"lam": "λ", "penalty": "penalty"}
+# Characters per line of a search panel's title (9 pt on a 4-inch panel); longer titles wrap.
+PANEL_TITLE_CHARACTERS = 56
 
 
 def _interval(stats: dict) -> tuple[float, float]:
@@ -223,7 +229,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
             _draw_choice(ax, choices[title], panels[title])
         ax.set_xlim(-0.03, 1.03)
         ax.set_ylim(bottom=-0.01)
-        ax.set_title(title, fontsize=9)
+        ax.set_title(textwrap.fill(title, PANEL_TITLE_CHARACTERS), fontsize=9)
         ax.set_xlabel("success rate (higher is better)", fontsize=8)
         ax.set_ylabel("danger frequency (lower is better)", fontsize=8)
         ax.tick_params(labelsize=8)
@@ -235,8 +241,12 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
     marks = {NOT_ELIGIBLE, *(choice.label for choice in choices.values())}
     labels = sorted(entries, key=lambda label: label in marks)  # the values first
     handles = [entries[label] for label in labels]
-    fig.legend(handles, labels, loc="lower center", ncol=legend_columns, fontsize=8,
-               frameon=False, title="mean and 95% CI over seeds", title_fontsize=8)
+    legend = fig.legend(handles, labels, loc="lower center", ncol=legend_columns, fontsize=8,
+                        frameon=False, title="mean and 95% CI over seeds", title_fontsize=8)
+    # Long labels (penalty = 0.03 ...) can make the legend wider than the panels: widen the
+    # figure to hold it rather than cut its first and last columns off.
+    legend_width = legend.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
+    fig.set_figwidth(max(fig.get_figwidth(), legend_width + 0.3))
     fig.tight_layout(rect=(0, legend_height / (3.4 * rows + legend_height), 1, 1))
     save_figure(fig, path)
 

@@ -59,9 +59,10 @@ BLUE = "#1f6fd1"
 YELLOW = "#f2c500"
 PINK = "#ff5fa2"
 
-# One colour per robot (trajectories), repeated beyond ten robots.
-ROBOT_COLOURS: tuple[str, ...] = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b",
-                                  "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#393b79")
+# One colour per robot (trajectories), repeated beyond eight robots; none near the CCR
+# states' blue, yellow and pink (the points along a path) or the danger rings' dark red.
+ROBOT_COLOURS: tuple[str, ...] = ("#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#17becf",
+                                  "#7f7f7f", "#393b79", "#637939")
 DANGER_COLOUR = "#8b0015"  # darker than the failure cross (FAILURE_COLOUR)
 DEFAULT_STATE_NAMES: tuple[str, ...] = ("robot",)
 DEFAULT_STATE_COLOURS: tuple[str, ...] = (BLUE,)
@@ -537,7 +538,9 @@ def draw_episode(record: EpisodeRecord, path_png: str | os.PathLike[str], *,
         Line2D([], [], marker="s", markerfacecolor="white", markeredgecolor="black",
                linestyle="none", label="start"),
         Line2D([], [], marker="o", markerfacecolor="#dddddd", markeredgecolor="black",
-               markersize=9, linestyle="none", label="end (robot size)"),
+               markersize=9, linestyle="none",
+               label="end (robot size, in its\nlast state's colour)" if several_states
+               else "end (robot size, in its colour)"),
     ] + _draw_outcomes(ax, record, 12) + handles
     _add_legend(fig, handles, 2.0, 8)
     fig.savefig(os.fspath(path_png), dpi=dpi)
