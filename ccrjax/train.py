@@ -370,7 +370,6 @@ class StopRequest:
                      "interrupted while it compiles)",
         "training": "finishing the current chunk, then saving a checkpoint",
         "finishing": "the run has finished; stopping once its pictures and policy are written",
-        "done": "",  # everything is written: the command says so as it exits (:meth:`closing`)
     }
 
     def __init__(self) -> None:
@@ -396,7 +395,7 @@ class StopRequest:
             signal.signal(number, self._previous.get(number, signal.SIG_DFL))
             raise KeyboardInterrupt
         self.signal_name = signal.Signals(number).name
-        if self.phase != "done":
+        if self.phase != "done":  # once all is written, :meth:`closing` says so at the exit
             print(f"\n{self.signal_name}: {self.WHEN[self.phase]} (press again to stop at once, "
                   "losing the work since the last checkpoint)", file=sys.stderr, flush=True)
 

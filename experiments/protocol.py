@@ -127,6 +127,8 @@ PLATEAU_WORDS = {True: "yes", False: "**no**",
 # The learners as the experiments' outputs name them; IDDPG is the paper's "DDPG" (one DDPG
 # per robot, its critic seeing only its own observation and action).
 LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+
+
 def quick_note(variants: bool = True) -> str:
     """The quick mode's warning atop a summary; ``variants``: whether it compares them
     (the budgets train plain learners only)."""

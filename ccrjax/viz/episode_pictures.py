@@ -39,6 +39,7 @@ def unbroken(command: str) -> str:
     never splits it across lines."""
     return command.replace(" ", "\u00a0")
 
+
 def record_trained_episode(program: TrainProgram, state: TrainState, key: jax.Array,
                            caption: str = "") -> EpisodeRecord:
     """One evaluation episode of ``state`` (one seed, no seed axis) in a fresh environment,

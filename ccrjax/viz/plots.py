@@ -22,6 +22,7 @@ from matplotlib.ticker import FuncFormatter
 from ccrjax.run.folder import METRIC_RANGES, METRIC_TITLES, replacing
 from ccrjax.run.search import REFERENCE_NAME
 from ccrjax.run.stats import mean_ci_along
+from ccrjax.viz.render import characters_per_line
 
 PALETTE = ("#1f6fd1", "#d1495b", "#2a9d8f", "#e9a03b", "#6a4c93", "#8c8c8c")
 CURVE_METRICS = (
@@ -170,8 +171,7 @@ def draw_obstacle_distances(plain: np.ndarray, ccr: np.ndarray,
 
 
 PARAMETER_SYMBOLS = {"lam": "λ", "penalty": "penalty"}
-# Characters per line of a search panel's title (9 pt on a 4-inch panel); longer titles wrap.
-PANEL_TITLE_CHARACTERS = 56
+PANEL_WIDTH = 4.0  # inches, of one search panel
 
 
 def _interval(stats: dict) -> tuple[float, float]:
@@ -210,7 +210,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
     legend_columns = min(len(values), 2 * columns + 1)
     legend_rows = -(-len(values) // legend_columns)
     legend_height = 0.25 + 0.2 * legend_rows  # inches: the legend's title and rows
-    fig = Figure(figsize=(4.0 * columns + 0.6, 3.4 * rows + legend_height), dpi=dpi)
+    fig = Figure(figsize=(PANEL_WIDTH * columns + 0.6, 3.4 * rows + legend_height), dpi=dpi)
     FigureCanvasAgg(fig)
     colours = {value: _value_colour(index, len(values)) for index, value in enumerate(values)}
     symbol = PARAMETER_SYMBOLS.get(parameter, parameter)
@@ -229,7 +229,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
             _draw_choice(ax, choices[title], panels[title])
         ax.set_xlim(-0.03, 1.03)
         ax.set_ylim(bottom=-0.01)
-        ax.set_title(textwrap.fill(title, PANEL_TITLE_CHARACTERS), fontsize=9)
+        ax.set_title(textwrap.fill(title, characters_per_line(PANEL_WIDTH, 9)), fontsize=9)
         ax.set_xlabel("success rate (higher is better)", fontsize=8)
         ax.set_ylabel("danger frequency (lower is better)", fontsize=8)
         ax.tick_params(labelsize=8)

@@ -440,8 +440,8 @@ def _new_figure(
     """
     left, right, bottom = 0.65, legend + 0.15, 0.5  # margins, inches
     axes_width = width - left - right
-    # About 0.55 em per character; a line is 1.25 em high, plus room above and below.
-    title = _title(record, max(20, int(axes_width * 72 / (0.55 * title_size))))
+    title = _title(record, max(20, characters_per_line(axes_width, title_size)))
+    # A line is 1.25 em high, plus room above and below.
     top = 0.15 + (title.count("\n") + 1) * 1.25 * title_size / 72
     x0, x1, y0, y1 = _extent(record)
     axes_height = float(np.clip(axes_width * (y1 - y0) / (x1 - x0), 1.5, 1.2 * width))
@@ -478,6 +478,12 @@ def _state_handles(record: EpisodeRecord, used_only: bool = False) -> list[Any]:
                                                    strict=True))
         if used is None or index in used
     ]
+
+
+def characters_per_line(width: float, points: float) -> int:
+    """How many characters of text at ``points`` fit in ``width`` inches (about 0.55 em
+    per character), the width to wrap a title to."""
+    return int(width * 72 / (0.55 * points))
 
 
 def _title(record: EpisodeRecord, width: int) -> str:
