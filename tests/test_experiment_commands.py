@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from ccrjax import cli
+from ccrjax.agents.ddpg import DDPGConfig
 
 EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 
@@ -567,6 +568,37 @@ def test_a_cell_made_with_other_training_parameters_is_not_current(search, budge
     assert not ledger.cell_is_current({**cell, "training": harder}, record)
     legacy = {k: v for k, v in cell.items() if k != "training"}
     assert ledger.cell_is_current(legacy, record)
+
+
+def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, budgets,
+                                                                        tables):
+    """MAAC's protocol settings (1 update of batch 256 every 100 steps, docs/protocol.md's
+    amendment of 2026-11-25) reach the budgets, both searches and every variant of the
+    tables, and a MAAC cell made at the original's 4 x 1024 is not current; the DDPG
+    family keeps its defaults."""
+    import ledger
+    import protocol
+
+    made = [(budgets.Settings(), lambda s, sc, a: s.config(sc, a))]
+    made += [(search.Settings(variant=variant, values=(1.0,)),
+              lambda s, sc, a: s.config(sc, a)) for variant in ("ccr", "pessimistic")]
+    made += [(tables.Settings(lam=3.0, penalty=0.3), lambda s, sc, a, v=v: s.config(sc, a, v))
+             for v in ("plain", "pessimistic", "ccr")]
+    for settings, config_of in made:
+        maac = config_of(settings, "strong_wind", "maac").learner_config
+        assert (maac.gradient_steps, maac.batch_size, maac.update_every) == (1, 256, 100)
+        assert maac == protocol.LEARNERS["maac"]
+        assert config_of(settings, "strong_wind", "maddpg").learner_config == DDPGConfig()
+        record = ledger.settings_record(settings)
+        config = config_of(settings, "strong_wind", "maac")
+        training = ledger.training_record(config)
+        cell = {"scenario": "strong_wind", "algo": "maac", "settings": record,
+                "budget": settings.budget("maac"), "training": training,
+                "variant": config.variant}
+        assert ledger.cell_is_current(cell, record)
+        original = {**training, "learner": {**training["learner"], "gradient_steps": 4,
+                                            "batch_size": 1024}}
+        assert not ledger.cell_is_current({**cell, "training": original}, record)
 
 
 @pytest.mark.parametrize("name", ["budgets", "search", "tables", "merge", "calibrate",
