@@ -3,6 +3,7 @@
     python benchmarks/train_throughput.py            # table
     python benchmarks/train_throughput.py --json     # one JSON object per line
     python benchmarks/train_throughput.py --algos maddpg --seeds 20   # a grid program's shape
+    python benchmarks/train_throughput.py --algos maddpg maac --seeds 3 --maac-updates 4x1024 1x256
 
 For each learner and variant it compiles ``TrainProgram.run`` (rollout of every
 training environment through the transform, replay insertion, learner updates, all
@@ -15,11 +16,14 @@ variant's time per step relative to the first variant's (with ``--variants plain
 ccr``: CCR's overhead). Learning starts at once (``learning_starts=0``) so every
 measured iteration includes its updates. With ``--seeds N`` the program trains N seeds at
 once (``vmap``), as the experiments' grid programs do (20 or 21 runs); the rates are then
-given per seed and for all seeds together.
+given per seed and for all seeds together. With ``--maac-updates GxB ...`` MAAC is timed at
+each of those update settings (G updates of batch B every ``update_every`` steps) instead of
+its default, as ``docs/protocol.md`` chose the experiments' setting.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import statistics
@@ -29,15 +33,28 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax import cli
+from ccrjax.agents.maac import MAACConfig
 from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.run.folder import git_commit
 from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
 
 
-def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds: int = 1):
+def update_setting(text: str) -> tuple[int, int]:
+    """``"GxB"`` (updates per round x batch size) as ``(G, B)``, for ``--maac-updates``."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(part.isdigit() and int(part) > 0 for part in parts):
+        raise argparse.ArgumentTypeError(
+            f"must be updates x batch, two integers > 0 such as 1x256, got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds: int = 1,
+                 learner: MAACConfig | None = None):
     """The compiled ``run`` of ``iterations`` iterations (of ``seeds`` seeds at once when
-    more than one), a state to feed it, and the config."""
-    config = TrainConfig(algo=algo, scenario=scenario, variant=variant, learning_starts=0)
+    more than one), a state to feed it, and the config; ``learner``: the learner's settings
+    (``None``: its defaults)."""
+    config = TrainConfig(algo=algo, scenario=scenario, variant=variant, learning_starts=0,
+                         learner=learner)
     program = make_train(config)
 
     def one_run(state):
@@ -61,12 +78,13 @@ def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds:
 
 
 def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int,
-            seeds: int = 1):
+            seeds: int = 1, learner: MAACConfig | None = None):
     """One row per variant; variants are timed in turns (ABAB...), so that the machine's
     drift affects them alike, and each row gets the median, over rounds, of its time over the
     first variant's in the same round (``time_vs_<first>``, with quartiles: CCR's overhead
     when the first variant is plain)."""
-    setups = {v: compiled_run(algo, v, scenario, iterations, seeds) for v in variants}
+    setups = {v: compiled_run(algo, v, scenario, iterations, seeds, learner)
+              for v in variants}
     states = {v: setup[3] for v, setup in setups.items()}
     times: dict[str, list[float]] = {v: [] for v in variants}
     for _ in range(repeats):
@@ -86,9 +104,13 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
         median = statistics.median(times[variant])
         updates = iterations * config.updates_per_iteration
         flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
+        settings = config.learner_config
         rows.append({
             "algo": algo,
             "variant": variant,
+            # updates per round x batch, every update_every environment steps
+            "updates": f"{settings.gradient_steps}x{settings.batch_size}"
+                       f"/{settings.update_every}",
             "scenario": scenario,
             "seeds": seeds,  # trained at once; the rates below are per seed
             "env_steps_per_s": iterations * config.steps_per_iteration / median,
@@ -125,17 +147,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=cli.int_in(1, 1024), default=1,
                         help="seeds trained at once in one vmapped program, as the "
                         "experiments' grids do (default: %(default)s)")
+    parser.add_argument("--maac-updates", nargs="+", type=update_setting,
+                        metavar="GxB", default=None,
+                        help="time MAAC at each of these update settings, G updates of "
+                        "batch B per round (default: its defaults, 4x1024)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object per line instead of a table")
     args = parser.parse_args(argv)
 
     rows = []
+    learners: dict[str, list[MAACConfig | None]] = {algo: [None] for algo in args.algos}
+    if args.maac_updates and "maac" in learners:
+        learners["maac"] = [MAACConfig(gradient_steps=g, batch_size=b)
+                            for g, b in args.maac_updates]
     for algo in args.algos:
-        for row in measure(algo, args.variants, args.scenario, args.iterations, args.repeats,
-                           args.seeds):
-            rows.append(row)
-            if args.json:
-                print(json.dumps(row), flush=True)
+        for learner in learners[algo]:
+            for row in measure(algo, args.variants, args.scenario, args.iterations,
+                               args.repeats, args.seeds, learner):
+                rows.append(row)
+                if args.json:
+                    print(json.dumps(row), flush=True)
     if not args.json:
         print(f"{platform.node()} · {jax.devices()[0].device_kind} · jax {jax.__version__} · "
               f"commit {git_commit()[:12]}")
@@ -147,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         first = args.variants[0]
         together = f" {'all seeds':>12}" if args.seeds > 1 else ""
         header = (
-            f"{'learner':8} {'variant':12} {'env steps/s':>12}{together} {'updates/s':>10} "
+            f"{'learner':8} {'variant':12} {'updates':>11} {'env steps/s':>12}{together} "
+            f"{'updates/s':>10} "
             f"{'GFLOP/upd':>10} {'GFLOP/s':>8} {'time vs ' + first:>14} {'quartiles':>13}"
         )
         print(header)
@@ -156,12 +188,14 @@ def main(argv: list[str] | None = None) -> int:
             all_seeds = (f" {row['env_steps_per_s_all_seeds']:12,.0f}" if args.seeds > 1
                          else "")
             print(
-                f"{row['algo']:8} {row['variant']:12} {row['env_steps_per_s']:12,.0f}{all_seeds} "
+                f"{row['algo']:8} {row['variant']:12} {row['updates']:>11} "
+                f"{row['env_steps_per_s']:12,.0f}{all_seeds} "
                 f"{row['updates_per_s']:10.1f} {row['gflop_per_update']:10.2f} "
                 f"{row['gflop_per_s']:8.1f} {row['time_vs_' + first]:14.3f} "
                 f"{row['time_vs_' + first + '_quartiles'][0]:6.3f}-"
                 f"{row['time_vs_' + first + '_quartiles'][1]:.3f}"
             )
+        print("'updates': updates per round x batch / environment steps between rounds")
         print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation, "
               f"variants timed in turns; 'time vs {first}': median (and quartiles) of each "
               "round's time over the first variant's in the same round")

@@ -277,11 +277,26 @@ def test_the_training_benchmark_times_a_grid_shaped_program(subprocess_env):
     """``benchmarks/train_throughput.py --seeds 2``: two seeds in one program, the rates
     per seed and for both (a smoke test: the benchmark's own numbers are not asserted)."""
     process = subprocess.run(
-        [sys.executable, "benchmarks/train_throughput.py", "--algos", "iddpg", "--iterations",
-         "1", "--repeats", "1", "--seeds", "2", "--json"],
+        [sys.executable, "benchmarks/train_throughput.py", "--algos", "iddpg", "maac",
+         "--maac-updates", "1x32", "--iterations", "1", "--repeats", "1", "--seeds", "2",
+         "--json"],
         cwd=ROOT, env=subprocess_env, capture_output=True, text=True, timeout=300)
     assert process.returncode == 0, process.stderr
-    (row,) = [json.loads(line) for line in process.stdout.splitlines()]
-    assert (row["algo"], row["seeds"], row["iterations"]) == ("iddpg", 2, 1)
-    assert row["env_steps_per_s"] > 0
-    assert row["env_steps_per_s_all_seeds"] == pytest.approx(2 * row["env_steps_per_s"])
+    iddpg, maac = [json.loads(line) for line in process.stdout.splitlines()]
+    assert (iddpg["algo"], iddpg["seeds"], iddpg["iterations"]) == ("iddpg", 2, 1)
+    assert (maac["algo"], maac["updates"]) == ("maac", "1x32/100")  # the setting asked for
+    for row in (iddpg, maac):
+        assert row["env_steps_per_s"] > 0
+        assert row["env_steps_per_s_all_seeds"] == pytest.approx(2 * row["env_steps_per_s"])
+
+
+def test_the_training_benchmark_refuses_a_malformed_update_setting_in_one_line(
+        subprocess_env):
+    """``--maac-updates`` takes updates x batch (``1x256``); anything else is one line and
+    status 2, before anything compiles."""
+    process = subprocess.run(
+        [sys.executable, "benchmarks/train_throughput.py", "--maac-updates", "4x0"],
+        cwd=ROOT, env=subprocess_env, capture_output=True, text=True, timeout=120)
+    lines = process.stderr.strip().splitlines()
+    assert process.returncode == 2 and len(lines) == 1, process.stderr
+    assert "--maac-updates" in lines[0] and "1x256" in lines[0]
