@@ -96,7 +96,7 @@ def settings_record(settings: Any) -> dict[str, Any]:
 # Settings that choose which cells an invocation makes, or how they are summarised, but
 # not what a cell holds: a cell made by a narrower or wider invocation (or one checked
 # against other candidate budgets) is kept, not trained again.
-NOT_IN_CELLS = ("scenarios", "algos", "candidate_every")
+NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds")
 
 
 def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None

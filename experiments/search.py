@@ -23,6 +23,14 @@ with the same settings. Then: ``search.json`` (everything, and the selected valu
 ``tradeoff.png`` (danger against success per value, averaged over the 9 pairs, with the rule's
 threshold and choice marked) and
 ``tradeoff_pairs.png`` (one panel per pair).
+
+A program too long for one sitting (on this project's 2-core CPU a MAAC pair's 21 runs take
+about 2.8 hours, and a program's partial checkpoints stay on the machine that made them) can
+be made in parts: ``--part-seeds 101`` trains every value on seed 101 alone and keeps that
+part in ``<out>/parts/``; once a pair's parts cover all its seeds, they are joined into the
+pair's cell, the same runs in the same order as one program would hold (every run depends
+only on its seed and value), and the parts are deleted. The summary is written once every
+named pair has its cell.
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ import protocol
 from ledger import (
     STOPPED_KEPT,
     Partial,
+    Progress,
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
@@ -82,6 +91,9 @@ class Settings(protocol.Settings):
     variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
     values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
+    # Which of the seeds this invocation trains, as a part of each pair (empty: all of
+    # them, the pair's whole program); not part of what a cell holds (ledger.NOT_IN_CELLS).
+    part_seeds: tuple[int, ...] = ()
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, self.variant)
@@ -114,6 +126,84 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
         "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+    }
+
+
+PARTS = "parts"
+
+
+def part_name(scenario: str, algo: str, seeds: tuple[int, ...]) -> str:
+    """A part's name: its pair and seeds (its file in ``<out>/parts/``, its checkpoint)."""
+    return f"{scenario}-{algo}-seeds-{'-'.join(str(seed) for seed in seeds)}"
+
+
+def part_settings(settings: Settings, seeds: tuple[int, ...]) -> Settings:
+    """The settings a part of ``seeds`` is trained with: the search's, on those seeds."""
+    return dataclasses.replace(settings, seeds=seeds, part_seeds=())
+
+
+def made_parts(settings: Settings, out: Path, scenario: str, algo: str) -> list[dict[str, Any]]:
+    """The parts of a pair in ``out`` made with ``settings`` (on some of its seeds), in the
+    order of their first seed; parts of other settings or seeds are left out."""
+    found = []
+    for path in sorted((out / PARTS).glob(f"{scenario}-{algo}-seeds-*.json")):
+        part = read_json(path)
+        seeds = tuple(part.get("settings", {}).get("seeds", ())) if part else ()
+        if (seeds and set(seeds) <= set(settings.seeds) and part.get("scenario") == scenario
+                and part.get("algo") == algo
+                and cell_is_current(part, settings_record(part_settings(settings, seeds)))):
+            found.append(part)
+    return sorted(found, key=lambda part: settings.seeds.index(part["settings"]["seeds"][0]))
+
+
+def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The pair's cell joined from ``parts`` (cells of the same pair on disjoint seeds), or
+    ``None`` while they do not cover ``settings.seeds`` exactly once. The runs are put in the
+    order one program of every seed would hold (values outer, seeds inner), each value's
+    per-seed metrics summarised again over all seeds, and the plateau check made again on
+    value 0's returns over all seeds; the programs' times are added up, and ``parts`` says
+    which seeds were made where, when and at which commit."""
+    seeds = [seed for part in parts for seed in part["settings"]["seeds"]]
+    if sorted(seeds) != sorted(settings.seeds):
+        return None
+    first = parts[0]
+    run_at = {(value, seed): (index, position) for index, part in enumerate(parts)
+              for position, (value, seed) in enumerate(zip(part["grid_values"],
+                                                           part["grid_seeds"], strict=True))}
+    grid_seeds = [int(seed) for _ in settings.grid_values for seed in settings.seeds]
+    grid_values = [float(value) for value in settings.grid_values for _ in settings.seeds]
+    order = [run_at[(value, seed)] for value, seed in zip(grid_values, grid_seeds, strict=True)]
+    history = {m: [parts[i]["history"][m][j] for i, j in order] for m in first["history"]}
+    rows = []
+    for index, value in enumerate(settings.grid_values):
+        row: dict[str, Any] = {"value": float(value), "seeds": list(settings.seeds)}
+        for metric in first["rows"][index]:
+            if metric in row:
+                continue
+            per_seed = {seed: number for part in parts for seed, number in
+                        zip(part["rows"][index]["seeds"],
+                            part["rows"][index][metric]["per_seed"], strict=True)}
+            row[metric] = summarise(np.array([per_seed[seed] for seed in settings.seeds]),
+                                    metric)
+        rows.append(row)
+    reference = np.asarray(history["return"])[np.asarray(grid_values) == 0.0]
+
+    def made(key: str) -> str:
+        return "; ".join(dict.fromkeys(str(part[key]) for part in parts))
+
+    return {
+        **{k: first[k] for k in ("scenario", "algo", "budget", "training", "parameter",
+                                 "env_steps")},
+        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
+        "grid_seeds": grid_seeds, "grid_values": grid_values, "rows": rows,
+        "history": history, "plain_return_plateau": plateau_or_undetermined(reference),
+        "nonfinite_iteration": [parts[i]["nonfinite_iteration"][j] for i, j in order],
+        "compile_s": sum(part["compile_s"] for part in parts),
+        "train_s": sum(part["train_s"] for part in parts),
+        "device": made("device"), "commit": made("commit"), "date": parts[-1]["date"],
+        "parts": [{"seeds": part["settings"]["seeds"],
+                   **{k: part[k] for k in ("device", "commit", "date", "train_s",
+                                           "compile_s")}} for part in parts],
     }
 
 
@@ -275,6 +365,10 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{len(protocol.SELECTION_SEEDS)}, the selection seeds from 100)")
     parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.SELECTION_SEEDS[0],
                         help="first seed (default: %(default)s; the tables use 0-9)")
+    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
+                        help="train only these of the seeds, as a part of each pair kept in "
+                        "<out>/parts/ and joined into the pair's cell once parts cover all its "
+                        "seeds (for a machine that cannot train a whole program at one sitting)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()})")
@@ -307,7 +401,51 @@ def settings_from(args: argparse.Namespace) -> Settings:
                                     ("the tables'", "the budgets'"))
     if problem:  # --quick too, as the tables and the budgets refuse
         raise cli.UsageError(problem)
+    if args.part_seeds:
+        part = tuple(sorted(set(args.part_seeds)))
+        outside = [seed for seed in part if seed not in fields["seeds"]]
+        if outside:
+            raise cli.UsageError(f"--part-seeds {' '.join(map(str, outside))} not among the "
+                                 f"search's seeds {fields['seeds'][0]}-{fields['seeds'][-1]}")
+        if part != fields["seeds"]:  # all of them: the whole program
+            fields["part_seeds"] = part
     return Settings(**fields)
+
+
+def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
+                cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
+    """Trains the part on ``settings.part_seeds`` of every pair in ``todo`` that lacks it,
+    and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
+    seeds = settings.part_seeds
+    runs = len(settings.grid_values) * len(seeds)
+    train = [pair for pair in todo
+             if not any(tuple(p["settings"]["seeds"]) == seeds for p in made_parts(settings, out,
+                                                                                   *pair))]
+    log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
+        f"{len(train)} to train ({runs} runs each)")
+    progress = Progress([(part_name(s, a, seeds), a, runs * settings.budget(a))
+                         for s, a in train])
+    for index, (scenario, algo) in enumerate(train):
+        name = part_name(scenario, algo, seeds)
+        part = train_cell(part_settings(settings, seeds), scenario, algo, partial)
+        (out / PARTS).mkdir(exist_ok=True)
+        write_atomic(out / PARTS / f"{name}.json", json.dumps(part) + "\n")
+        partial.discard(name)
+        ledger.record(index + 1)
+        log(progress.finished(index, part["train_s"] + part["compile_s"]))
+    for scenario, algo in todo:
+        parts = made_parts(settings, out, scenario, algo)
+        cell = join_parts(settings, parts) if parts else None
+        if cell is None:
+            made = sorted(seed for part in parts for seed in part["settings"]["seeds"])
+            log(f"{scenario}-{algo}: parts made on seeds {made} of {list(settings.seeds)}")
+            continue
+        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        for part in parts:
+            name = part_name(scenario, algo, tuple(part["settings"]["seeds"]))
+            (out / PARTS / f"{name}.json").unlink()
+        log(f"{scenario}-{algo}: joined from {len(parts)} parts into its cell")
+        cells[(scenario, algo)] = cell
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -328,14 +466,23 @@ def main(argv: list[str] | None = None) -> int:
         settings, out, runs, f"{len(settings.grid_values)} values x {len(settings.seeds)} "
         f"seeds = {runs} runs each")
     partial = Partial(out, args.checkpoint_minutes)
-    for index, (scenario, algo) in enumerate(todo):
-        cell = train_cell(settings, scenario, algo, partial)
-        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-        partial.discard(f"{scenario}-{algo}")
-        cells[(scenario, algo)] = cell
-        ledger.record(index + 1)
-        log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
+    if settings.part_seeds:
+        train_parts(settings, out, todo, cells, partial, ledger)
+    else:
+        for index, (scenario, algo) in enumerate(todo):
+            cell = train_cell(settings, scenario, algo, partial)
+            write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+            partial.discard(f"{scenario}-{algo}")
+            cells[(scenario, algo)] = cell
+            ledger.record(index + 1)
+            log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
     ledger.record(len(todo), finished=True)
+    missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
+               if (s, a) not in cells]
+    if missing:
+        log(f"the summary waits for the other parts of {', '.join(missing)} (--part-seeds); "
+            f"parts kept in {out / PARTS}")
+        return 0
     ordered = {pair: cells[pair] for pair in
                [(s, a) for s in settings.scenarios for a in settings.algos]}
     parameter, _ = protocol.SEARCHED[settings.variant]

@@ -679,3 +679,46 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
                                  "the 4 runs")
     assert text.startswith("1 of the 4 runs had non-finite updates, skipped")
     assert text.endswith("wind, MADDPG, lam 3, seed 101, from iteration 7.")
+
+
+def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(search, tmp_path,
+                                                                          capsys):
+    """``--part-seeds``: each part trains every value on some seeds; the summary waits
+    until the parts cover the pair's seeds, then they are joined into the cell that one
+    program of all seeds makes (the same runs in the same order, rows and plateau check
+    over all seeds) and deleted. A seed outside the search is refused in one line."""
+    common = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence",
+              "--algos", "iddpg", "--values", "1"]
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    assert search.main([*common, "--out", str(whole)]) == 0
+    capsys.readouterr()
+    refused(search, [*common, "--part-seeds", "7", "--out", str(parts)], capsys,
+            "--part-seeds 7 not among the search's seeds 100-101")
+    assert search.main([*common, "--part-seeds", "101", "--out", str(parts)]) == 0
+    assert not (parts / "search.json").exists()
+    assert not (parts / "cells" / "turbulence-iddpg.json").exists()
+    assert [p.name for p in (parts / "parts").iterdir()] == ["turbulence-iddpg-seeds-101.json"]
+    assert "waits for the other parts of turbulence-iddpg" in capsys.readouterr().err
+    assert search.main([*common, "--part-seeds", "100", "--out", str(parts)]) == 0
+    assert (parts / "search.json").exists() and not any((parts / "parts").iterdir())
+
+    one = json.loads((whole / "cells" / "turbulence-iddpg.json").read_text())
+    joined = json.loads((parts / "cells" / "turbulence-iddpg.json").read_text())
+    assert [p["seeds"] for p in joined["parts"]] == [[100], [101]]
+    for key in ("settings", "grid_seeds", "grid_values", "env_steps", "training", "budget",
+                "nonfinite_iteration", "plain_return_plateau"):
+        assert joined[key] == one[key], key
+    for metric, curves in one["history"].items():
+        np.testing.assert_allclose(joined["history"][metric], curves, rtol=1e-6, atol=1e-6)
+    for row_one, row_joined in zip(one["rows"], joined["rows"], strict=True):
+        assert row_joined.keys() == row_one.keys() and row_joined["seeds"] == [100, 101]
+        for metric in row_one:
+            if isinstance(row_one[metric], dict):
+                for stat in ("per_seed", "mean", "ci_low", "ci_high"):
+                    np.testing.assert_allclose(row_joined[metric][stat], row_one[metric][stat],
+                                               rtol=1e-5, atol=1e-6)
+    import ledger
+
+    record = ledger.settings_record(search.settings_from(
+        search.build_parser().parse_args(common)))
+    assert ledger.cell_is_current(joined, record)
