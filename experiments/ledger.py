@@ -99,6 +99,74 @@ def settings_record(settings: Any) -> dict[str, Any]:
 NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds")
 
 
+# A program too long for one sitting can be made in parts by seeds (``--part-seeds``): each
+# part is the program on some of the seeds, kept in ``<out>/parts/`` until the parts cover
+# every seed, then joined into the cell one program would have made (each run depends only
+# on its seed and parameters) and deleted.
+PARTS = "parts"
+
+
+def part_seeds_from(requested: list[int] | None, seeds: tuple[int, ...], what: str
+                    ) -> tuple[int, ...]:
+    """``--part-seeds`` checked against the ``seeds`` of the ``what`` (raising
+    :class:`ccrjax.cli.UsageError`): sorted, or ``()`` when none or all are named."""
+    part = tuple(sorted(set(requested or ())))
+    outside = [seed for seed in part if seed not in seeds]
+    if outside:
+        raise cli.UsageError(f"--part-seeds {' '.join(map(str, outside))} not among the "
+                             f"{what}'s seeds {seeds[0]}-{seeds[-1]}")
+    return () if part == tuple(sorted(seeds)) else part
+
+
+def part_path(out: Path, stem: str, seeds: tuple[int, ...]) -> Path:
+    """Where the part on ``seeds`` of the cell named ``stem`` is kept."""
+    return out / PARTS / f"{stem}-seeds-{'-'.join(str(seed) for seed in seeds)}.json"
+
+
+def part_settings(settings: Any, seeds: tuple[int, ...]) -> Any:
+    """The settings a part on ``seeds`` is trained with: ``settings`` on those seeds."""
+    return dataclasses.replace(settings, seeds=tuple(seeds), part_seeds=())
+
+
+def made_parts(settings: Any, out: Path, stem: str) -> list[dict[str, Any]]:
+    """The parts of the cell named ``stem`` in ``out`` made with ``settings`` on some of its
+    seeds, in the order of their first seed; parts of other settings are left out."""
+    found = []
+    for path in sorted((out / PARTS).glob(f"{stem}-seeds-*.json")):
+        part = read_json(path)
+        seeds = tuple((part or {}).get("settings", {}).get("seeds", ()))
+        if (seeds and set(seeds) <= set(settings.seeds) and path == part_path(out, stem, seeds)
+                and cell_is_current(part, settings_record(part_settings(settings, seeds)))):
+            found.append(part)
+    return sorted(found, key=lambda part: settings.seeds.index(part["settings"]["seeds"][0]))
+
+
+def parts_cover(settings: Any, parts: list[dict[str, Any]]) -> bool:
+    """Whether ``parts`` hold every seed of ``settings`` exactly once."""
+    seeds = [seed for part in parts for seed in part["settings"]["seeds"]]
+    return sorted(seeds) == sorted(settings.seeds)
+
+
+def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict[str, Any]:
+    """A joined cell's provenance: the parts' devices, commits (each once, in order) and
+    last date, and per part its seeds, device, commit, date and ``times``."""
+    def made(key: str) -> str:
+        return "; ".join(dict.fromkeys(str(part[key]) for part in parts))
+
+    return {"device": made("device"), "commit": made("commit"), "date": parts[-1]["date"],
+            "parts": [{"seeds": part["settings"]["seeds"],
+                       **{k: part[k] for k in ("device", "commit", "date", *times)}}
+                      for part in parts]}
+
+
+def discard_parts(out: Path, stem: str, parts: list[dict[str, Any]]) -> None:
+    """Deletes the joined ``parts`` of the cell named ``stem`` (and ``parts/`` once empty)."""
+    for part in parts:
+        part_path(out, stem, tuple(part["settings"]["seeds"])).unlink()
+    if (out / PARTS).is_dir() and not any((out / PARTS).iterdir()):
+        (out / PARTS).rmdir()
+
+
 def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
                   ) -> dict[str, Any]:
     """What a cell of learner ``algo`` depends on: the settings ``record`` less

@@ -29,8 +29,10 @@ about 2.8 hours, and a program's partial checkpoints stay on the machine that ma
 be made in parts: ``--part-seeds 101`` trains every value on seed 101 alone and keeps that
 part in ``<out>/parts/``; once a pair's parts cover all its seeds, they are joined into the
 pair's cell, the same runs in the same order as one program would hold (every run depends
-only on its seed and value), and the parts are deleted. The summary is written once every
-named pair has its cell.
+only on its seed and value; to float32 rounding, as a program of another size may order its
+arithmetic otherwise), and the parts are deleted. A part's invocation writes no
+summary (it would cover only the pairs it names, over a folder's whole summary); the same
+command without ``--part-seeds`` writes it, training nothing for the pairs whose cells exist.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    PARTS,
     STOPPED_KEPT,
     Partial,
     Progress,
@@ -54,9 +57,16 @@ from ledger import (
     cell_path,
     check_quick_out,
     device_name,
+    discard_parts,
     duration,
     log,
+    made_parts,
     open_experiment,
+    part_path,
+    part_seeds_from,
+    part_settings,
+    parts_cover,
+    parts_made_text,
     plan_pairs,
     read_json,
     settings_record,
@@ -91,9 +101,6 @@ class Settings(protocol.Settings):
     variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
     values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
-    # Which of the seeds this invocation trains, as a part of each pair (empty: all of
-    # them, the pair's whole program); not part of what a cell holds (ledger.NOT_IN_CELLS).
-    part_seeds: tuple[int, ...] = ()
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, self.variant)
@@ -129,33 +136,6 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
     }
 
 
-PARTS = "parts"
-
-
-def part_name(scenario: str, algo: str, seeds: tuple[int, ...]) -> str:
-    """A part's name: its pair and seeds (its file in ``<out>/parts/``, its checkpoint)."""
-    return f"{scenario}-{algo}-seeds-{'-'.join(str(seed) for seed in seeds)}"
-
-
-def part_settings(settings: Settings, seeds: tuple[int, ...]) -> Settings:
-    """The settings a part of ``seeds`` is trained with: the search's, on those seeds."""
-    return dataclasses.replace(settings, seeds=seeds, part_seeds=())
-
-
-def made_parts(settings: Settings, out: Path, scenario: str, algo: str) -> list[dict[str, Any]]:
-    """The parts of a pair in ``out`` made with ``settings`` (on some of its seeds), in the
-    order of their first seed; parts of other settings or seeds are left out."""
-    found = []
-    for path in sorted((out / PARTS).glob(f"{scenario}-{algo}-seeds-*.json")):
-        part = read_json(path)
-        seeds = tuple(part.get("settings", {}).get("seeds", ())) if part else ()
-        if (seeds and set(seeds) <= set(settings.seeds) and part.get("scenario") == scenario
-                and part.get("algo") == algo
-                and cell_is_current(part, settings_record(part_settings(settings, seeds)))):
-            found.append(part)
-    return sorted(found, key=lambda part: settings.seeds.index(part["settings"]["seeds"][0]))
-
-
 def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The pair's cell joined from ``parts`` (cells of the same pair on disjoint seeds), or
     ``None`` while they do not cover ``settings.seeds`` exactly once. The runs are put in the
@@ -163,8 +143,7 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
     per-seed metrics summarised again over all seeds, and the plateau check made again on
     value 0's returns over all seeds; the programs' times are added up, and ``parts`` says
     which seeds were made where, when and at which commit."""
-    seeds = [seed for part in parts for seed in part["settings"]["seeds"]]
-    if sorted(seeds) != sorted(settings.seeds):
+    if not parts_cover(settings, parts):
         return None
     first = parts[0]
     run_at = {(value, seed): (index, position) for index, part in enumerate(parts)
@@ -187,10 +166,6 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
                                     metric)
         rows.append(row)
     reference = np.asarray(history["return"])[np.asarray(grid_values) == 0.0]
-
-    def made(key: str) -> str:
-        return "; ".join(dict.fromkeys(str(part[key]) for part in parts))
-
     return {
         **{k: first[k] for k in ("scenario", "algo", "budget", "training", "parameter",
                                  "env_steps")},
@@ -200,10 +175,7 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
         "nonfinite_iteration": [parts[i]["nonfinite_iteration"][j] for i, j in order],
         "compile_s": sum(part["compile_s"] for part in parts),
         "train_s": sum(part["train_s"] for part in parts),
-        "device": made("device"), "commit": made("commit"), "date": parts[-1]["date"],
-        "parts": [{"seeds": part["settings"]["seeds"],
-                   **{k: part[k] for k in ("device", "commit", "date", "train_s",
-                                           "compile_s")}} for part in parts],
+        **parts_made_text(parts, ("train_s", "compile_s")),
     }
 
 
@@ -401,14 +373,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
                                     ("the tables'", "the budgets'"))
     if problem:  # --quick too, as the tables and the budgets refuse
         raise cli.UsageError(problem)
-    if args.part_seeds:
-        part = tuple(sorted(set(args.part_seeds)))
-        outside = [seed for seed in part if seed not in fields["seeds"]]
-        if outside:
-            raise cli.UsageError(f"--part-seeds {' '.join(map(str, outside))} not among the "
-                                 f"search's seeds {fields['seeds'][0]}-{fields['seeds'][-1]}")
-        if part != fields["seeds"]:  # all of them: the whole program
-            fields["part_seeds"] = part
+    fields["part_seeds"] = part_seeds_from(args.part_seeds, fields["seeds"], "search")
     return Settings(**fields)
 
 
@@ -418,32 +383,30 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
     and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
     seeds = settings.part_seeds
     runs = len(settings.grid_values) * len(seeds)
-    train = [pair for pair in todo
-             if not any(tuple(p["settings"]["seeds"]) == seeds for p in made_parts(settings, out,
-                                                                                   *pair))]
+    train = [(s, a) for s, a in todo
+             if not any(tuple(part["settings"]["seeds"]) == seeds
+                        for part in made_parts(settings, out, f"{s}-{a}"))]
     log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
         f"{len(train)} to train ({runs} runs each)")
-    progress = Progress([(part_name(s, a, seeds), a, runs * settings.budget(a))
-                         for s, a in train])
+    progress = Progress([(part_path(out, f"{s}-{a}", seeds).stem, a,
+                          runs * settings.budget(a)) for s, a in train])
     for index, (scenario, algo) in enumerate(train):
-        name = part_name(scenario, algo, seeds)
+        path = part_path(out, f"{scenario}-{algo}", seeds)
         part = train_cell(part_settings(settings, seeds), scenario, algo, partial)
-        (out / PARTS).mkdir(exist_ok=True)
-        write_atomic(out / PARTS / f"{name}.json", json.dumps(part) + "\n")
-        partial.discard(name)
+        path.parent.mkdir(exist_ok=True)
+        write_atomic(path, json.dumps(part) + "\n")
+        partial.discard(path.stem)
         ledger.record(index + 1)
         log(progress.finished(index, part["train_s"] + part["compile_s"]))
     for scenario, algo in todo:
-        parts = made_parts(settings, out, scenario, algo)
+        parts = made_parts(settings, out, f"{scenario}-{algo}")
         cell = join_parts(settings, parts) if parts else None
         if cell is None:
             made = sorted(seed for part in parts for seed in part["settings"]["seeds"])
             log(f"{scenario}-{algo}: parts made on seeds {made} of {list(settings.seeds)}")
             continue
         write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-        for part in parts:
-            name = part_name(scenario, algo, tuple(part["settings"]["seeds"]))
-            (out / PARTS / f"{name}.json").unlink()
+        discard_parts(out, f"{scenario}-{algo}", parts)
         log(f"{scenario}-{algo}: joined from {len(parts)} parts into its cell")
         cells[(scenario, algo)] = cell
 
@@ -477,11 +440,13 @@ def main(argv: list[str] | None = None) -> int:
             ledger.record(index + 1)
             log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
     ledger.record(len(todo), finished=True)
-    missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
-               if (s, a) not in cells]
-    if missing:
-        log(f"the summary waits for the other parts of {', '.join(missing)} (--part-seeds); "
-            f"parts kept in {out / PARTS}")
+    if settings.part_seeds:  # the summary is the whole grid's, made without --part-seeds
+        missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
+                   if (s, a) not in cells]
+        log((f"parts of {', '.join(missing)} wait in {out / PARTS} for the other seeds; "
+             if missing else "") + "the summary is written by the same command without "
+            "--part-seeds (it trains nothing for the pairs whose cells exist), naming the "
+            "scenarios and learners to summarise")
         return 0
     ordered = {pair: cells[pair] for pair in
                [(s, a) for s in settings.scenarios for a in settings.algos]}

@@ -33,6 +33,13 @@ across invocations, so the grid can be spread over several; the program in train
 checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
 
+A program too long for one sitting (on this project's 2-core CPU the MAAC and MADDPG
+plain-and-pessimistic programs take 2 to 3 hours, and partial checkpoints stay on the machine
+that made them) can be made in parts: ``--part-seeds 0 1 2 3 4`` trains those seeds alone
+and keeps each variant's part in ``<out>/parts/``; once a cell's parts cover its seeds they
+are joined into it (each run depends only on its seed and parameters: the runs one program
+holds, to float32 rounding) and deleted.
+
 Every finished cell (scenario, learner, variant) is written atomically to
 ``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and
 curves, whether the return plateaued (:func:`ccrjax.run.stats.plateau`), the first
@@ -82,9 +89,16 @@ from ledger import (
     cell_is_current,
     check_quick_out,
     device_name,
+    discard_parts,
     duration,
     log,
+    made_parts,
     open_experiment,
+    part_path,
+    part_seeds_from,
+    part_settings,
+    parts_cover,
+    parts_made_text,
     read_json,
     settings_record,
     training_record,
@@ -175,7 +189,7 @@ class Job:
 
 
 def cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
-    return out / "cells" / f"{scenario}-{algo}-{variant}.json"
+    return out / "cells" / f"{cell_stem(scenario, algo, variant)}.json"
 
 
 def read_cell(path: Path, settings: Settings) -> dict | None:
@@ -273,16 +287,93 @@ def grid_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
     return cells, missing
 
 
+def cell_stem(scenario: str, algo: str, variant: str) -> str:
+    """A cell's name: its file in ``cells/``, and its parts' in ``parts/``."""
+    return f"{scenario}-{algo}-{variant}"
+
+
+def job_part_made(out: Path, job: Job, settings: Settings, seeds: tuple[int, ...]) -> bool:
+    """Whether every variant of ``job`` has its part on ``seeds`` in ``out``."""
+    return all(any(tuple(part["settings"]["seeds"]) == seeds for part in
+                   made_parts(settings, out, cell_stem(job.scenario, job.algo, variant)))
+               for variant in job.variants)
+
+
+def join_cell_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """A variant's cell joined from ``parts`` (its cells on disjoint seeds), or ``None``
+    while they do not cover ``settings.seeds`` exactly once: every per-seed record in the
+    order of ``settings.seeds``, the plateau check made again over all seeds, the episode
+    of the first seed (as one program keeps it), the programs' times added up, and which
+    seeds were made where, when and at which commit."""
+    if not parts_cover(settings, parts):
+        return None
+    at = {seed: (index, position) for index, part in enumerate(parts)
+          for position, seed in enumerate(part["seeds"])}
+    order = [at[seed] for seed in settings.seeds]
+
+    def joined(records: list[list[Any]]) -> list[Any]:
+        return [records[index][position] for index, position in order]
+
+    first = parts[0]
+    history = {m: joined([part["history"][m] for part in parts]) for m in first["history"]}
+    times = ("train_seconds_of_program", "compile_seconds_of_program")
+    cell = {
+        **{k: first[k] for k in ("scenario", "algo", "variant", "budget", "training")},
+        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
+        "seeds": list(settings.seeds),
+        **{group: {k: joined([part[group][k] for part in parts]) for k in first[group]}
+           for group in ("params", "final")},
+        "history": history,
+        "return_plateau": plateau_or_undetermined(np.asarray(history["return"])),
+        "nonfinite_iteration": joined([part["nonfinite_iteration"] for part in parts]),
+        **{k: sum(part[k] for part in parts) for k in times},
+        **parts_made_text(parts, times),
+    }
+    if "arrival" in first:
+        cell["arrival"] = {k: joined([part["arrival"][k] for part in parts])
+                           for k in first["arrival"]}
+    cell["episode"] = parts[order[0][0]]["episode"]
+    return cell
+
+
+def join_parts_of(jobs: list[Job], settings: Settings, out: Path) -> None:
+    """Joins every variant of ``jobs`` whose parts in ``out`` cover its seeds into its cell,
+    deleting the parts; says what each still lacks."""
+    for job in jobs:
+        for variant in job.variants:
+            stem = cell_stem(job.scenario, job.algo, variant)
+            parts = made_parts(settings, out, stem)
+            cell = join_cell_parts(settings, parts) if parts else None
+            if cell is None:
+                made = sorted(seed for part in parts for seed in part["seeds"])
+                log(f"{stem}: parts made on seeds {made} of {list(settings.seeds)}")
+                continue
+            write_atomic(cell_path(out, job.scenario, job.algo, variant),
+                         json.dumps(cell) + "\n")
+            discard_parts(out, stem, parts)
+            log(f"{stem}: joined from {len(parts)} parts into its cell")
+
+
 def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) -> int:
     """Trains every missing program of ``settings`` (compiling the next program while one
-    trains); returns the number of programs trained."""
+    trains), or with ``settings.part_seeds`` its part on those seeds, then joins the parts
+    that cover their cells' seeds; returns the number of programs trained."""
     jobs = jobs_of(settings)
     todo = [job for job in jobs if job_cells(out, job, settings) is None]
-    log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to train "
-        f"({len(settings.seeds)} seeds per cell, budgets "
-        f"{ {a: settings.budget(a) for a in ALGOS} }, on {device_name()})")
+    seeds = settings.part_seeds or settings.seeds
+    trained = part_settings(settings, seeds) if settings.part_seeds else settings
+    budgets = f"budgets { {a: settings.budget(a) for a in ALGOS} }, on {device_name()}"
+    missing = todo
+    if settings.part_seeds:
+        todo = [job for job in missing if not job_part_made(out, job, settings, seeds)]
+        log(f"{len(jobs) - len(missing)} of {len(jobs)} programs already done; of the other "
+            f"{len(missing)}, {len(missing) - len(todo)} made on seeds {list(seeds)}; "
+            f"{len(todo)} parts to train ({len(seeds)} seeds per cell, {budgets})")
+    else:
+        log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
+            f"train ({len(seeds)} seeds per cell, {budgets})")
     progress = Progress([(job.name, job.algo,
-                          len(job.variants) * len(settings.seeds) * settings.budget(job.algo))
+                          len(job.variants) * len(seeds) * settings.budget(job.algo))
                          for job in todo])
     (out / "cells").mkdir(parents=True, exist_ok=True)
     # Compilation runs ahead in worker threads (XLA's compiler releases the GIL) while the
@@ -291,18 +382,25 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) ->
     workers = 2 if settings.quick else 1
     with ThreadPoolExecutor(max_workers=workers) as compiler:
         for job in todo:
-            job.training = build_training(job, settings)
+            job.training = build_training(job, trained)
         compiled = [compiler.submit(job.training.compile, not settings.quick) for job in todo]
         for number, (job, done) in enumerate(zip(todo, compiled, strict=True)):
             done.result()
-            runs = partial.train(job.training, job.name)
-            for variant, cell in cells_of(job, runs, settings).items():
-                write_atomic(cell_path(out, job.scenario, job.algo, variant),
-                             json.dumps(cell) + "\n")
-            partial.discard(job.name)
+            name = (part_path(out, job.name, seeds).stem if settings.part_seeds
+                    else job.name)
+            runs = partial.train(job.training, name)
+            for variant, cell in cells_of(job, runs, trained).items():
+                path = (part_path(out, cell_stem(job.scenario, job.algo, variant), seeds)
+                        if settings.part_seeds else
+                        cell_path(out, job.scenario, job.algo, variant))
+                path.parent.mkdir(exist_ok=True)
+                write_atomic(path, json.dumps(cell) + "\n")
+            partial.discard(name)
             job.training = None  # free the compiled program
             ledger.record(number + 1)
             log(progress.finished(number, runs.run_s + runs.compile_s))
+    if settings.part_seeds:
+        join_parts_of(missing, settings, out)
     return len(todo)
 
 
@@ -874,6 +972,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "tables", default_text="runs/tables")
+    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
+                        help="train only these of the seeds, as a part of each program kept in "
+                        "<out>/parts/ and joined into its cells once parts cover all their "
+                        "seeds (for a machine that cannot train a whole program at one sitting)")
     add_checkpoint_option(parser)
     return parser
 
@@ -933,6 +1035,7 @@ def main(argv: list[str] | None = None) -> int:
                                         ("the selection", "the budgets'"))
         if problem:
             raise cli.UsageError(problem)
+        fields["part_seeds"] = part_seeds_from(args.part_seeds, fields["seeds"], "tables")
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
 

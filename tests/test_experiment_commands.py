@@ -698,9 +698,13 @@ def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(searc
     assert not (parts / "search.json").exists()
     assert not (parts / "cells" / "turbulence-iddpg.json").exists()
     assert [p.name for p in (parts / "parts").iterdir()] == ["turbulence-iddpg-seeds-101.json"]
-    assert "waits for the other parts of turbulence-iddpg" in capsys.readouterr().err
+    assert "parts of turbulence-iddpg wait in" in capsys.readouterr().err
     assert search.main([*common, "--part-seeds", "100", "--out", str(parts)]) == 0
-    assert (parts / "search.json").exists() and not any((parts / "parts").iterdir())
+    assert not (parts / "parts").exists() and not (parts / "search.json").exists()
+    assert "joined from 2 parts" in capsys.readouterr().err
+    assert search.main([*common, "--out", str(parts)]) == 0  # the summary, training nothing
+    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
+    assert (parts / "search.json").exists()
 
     one = json.loads((whole / "cells" / "turbulence-iddpg.json").read_text())
     joined = json.loads((parts / "cells" / "turbulence-iddpg.json").read_text())

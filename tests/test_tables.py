@@ -12,6 +12,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 # The whole grid's pipeline (18 programs compiled): minutes, so `make test-slow`.
@@ -279,3 +280,39 @@ def test_a_narrower_invocation_trains_its_programs_and_waits_for_the_rest(tables
     assert sorted(p.name for p in (out / "cells").iterdir()) == [
         f"turbulence-iddpg-{v}.json" for v in ("ccr", "pessimistic", "plain")]
     assert not (out / "tables.md").exists()
+
+
+def test_cells_made_in_seed_parts_join_into_the_cells_one_program_makes(tables, quick_run,
+                                                                       tmp_path, capsys):
+    """``--part-seeds``: a program made seed by seed; each variant's parts are joined into
+    the cell one program of all seeds makes (per-seed records in seed order, the plateau
+    check and the first seed's episode) once they cover its seeds, and deleted."""
+    import ledger
+
+    out = tmp_path / "parts"
+    pair = ["--quick", "--scenarios", "hidden_obstacle", "--algos", "iddpg", "--out", str(out)]
+    assert tables.main([*pair, "--part-seeds", "1"]) == 0
+    assert sorted(p.name for p in (out / "parts").iterdir()) == [
+        f"hidden_obstacle-iddpg-{v}-seeds-1.json" for v in ("ccr", "pessimistic", "plain")]
+    assert not (out / "cells" / "hidden_obstacle-iddpg-plain.json").exists()
+    assert tables.main([*pair, "--part-seeds", "1"]) == 0  # made: nothing trains again
+    assert "0 parts to train" in capsys.readouterr().err
+    assert tables.main([*pair, "--part-seeds", "0"]) == 0
+    assert not (out / "parts").exists()
+    for variant in ("plain", "pessimistic", "ccr"):
+        name = f"hidden_obstacle-iddpg-{variant}.json"
+        one = json.loads((quick_run / "cells" / name).read_text())
+        joined = json.loads((out / "cells" / name).read_text())
+        assert [part["seeds"] for part in joined["parts"]] == [[0], [1]]
+        assert ledger.cell_is_current(joined, one["settings"])
+        for key in ("seeds", "params", "training", "budget", "return_plateau",
+                    "nonfinite_iteration"):
+            assert joined[key] == one[key], (variant, key)
+        # To float32 rounding: a program of another size may order its arithmetic otherwise.
+        for group in ("final", "history", "arrival", "episode"):
+            for key, values in one[group].items():
+                if values is None or group == "episode" and key != "position":
+                    assert joined[group][key] == values, (variant, group, key)
+                else:
+                    np.testing.assert_allclose(joined[group][key], values, rtol=1e-5,
+                                               atol=1e-5, err_msg=f"{variant} {group} {key}")
