@@ -41,7 +41,6 @@ from ledger import (
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
-    cell_path,
     check_quick_out,
     device_name,
     duration,
@@ -50,6 +49,7 @@ from ledger import (
     plan_pairs,
     read_json,
     settings_record,
+    train_pairs,
     training_record,
 )
 
@@ -273,13 +273,10 @@ def main(argv: list[str] | None = None) -> int:
     cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
                                        f"{len(settings.seeds)} seeds each")
     partial = Partial(out, args.checkpoint_minutes)
-    for index, (scenario, algo) in enumerate(todo):
-        cell = train_cell(settings, scenario, algo, partial)
-        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-        partial.discard(f"{scenario}-{algo}")
+    for (scenario, algo), cell in train_pairs(
+            todo, out, partial, ledger, progress,
+            lambda s, a: train_cell(settings, s, a, partial)):
         cells[(scenario, algo)] = cell
-        ledger.record(index + 1)
-        log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
         found = checked(cell, settings)
         log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
             f"proposed budget {found['proposed_budget']}")

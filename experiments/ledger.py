@@ -17,7 +17,7 @@ import json
 import sys
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -333,6 +333,21 @@ def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
     progress = Progress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
     (out / "cells").mkdir(parents=True, exist_ok=True)
     return cells, todo, progress
+
+
+def train_pairs(todo: list[tuple[str, str]], out: Path, partial: Partial, ledger: Ledger,
+                progress: Progress, train_cell: Callable[[str, str], dict[str, Any]]
+                ) -> Iterator[tuple[tuple[str, str], dict[str, Any]]]:
+    """Trains the program of each (scenario, algo) in ``todo`` with ``train_cell``, writes
+    its cell, drops its checkpoint, records the invocation's progress and logs it; yields
+    each pair with its cell as it is written (the searches' and the budgets' loop)."""
+    for index, (scenario, algo) in enumerate(todo):
+        cell = train_cell(scenario, algo)
+        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        partial.discard(f"{scenario}-{algo}")
+        ledger.record(index + 1)
+        log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
+        yield (scenario, algo), cell
 
 
 def device_name() -> str:

@@ -70,6 +70,7 @@ from ledger import (
     plan_pairs,
     read_json,
     settings_record,
+    train_pairs,
     training_record,
 )
 
@@ -432,13 +433,8 @@ def main(argv: list[str] | None = None) -> int:
     if settings.part_seeds:
         train_parts(settings, out, todo, cells, partial, ledger)
     else:
-        for index, (scenario, algo) in enumerate(todo):
-            cell = train_cell(settings, scenario, algo, partial)
-            write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-            partial.discard(f"{scenario}-{algo}")
-            cells[(scenario, algo)] = cell
-            ledger.record(index + 1)
-            log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
+        cells.update(train_pairs(todo, out, partial, ledger, progress,
+                                 lambda s, a: train_cell(settings, s, a, partial)))
     ledger.record(len(todo), finished=True)
     if settings.part_seeds:  # the summary is the whole grid's, made without --part-seeds
         missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
