@@ -41,7 +41,8 @@ def seed_overlap(seeds: Sequence[int], offset: int, against: Sequence[str]) -> s
 # (experiments/budgets.py, seeds 200-202; docs/protocol.md tells the history): the re-check
 # on the current scenarios (experiments/results/budgets/, CPU, 3M) found IDDPG levelled in
 # all three scenarios and MADDPG on the obstacle, MADDPG still creeping up in turbulence and
-# strong wind; MAAC's budgets run again with its box9 actions on a GPU before its searches.
+# strong wind; MAAC's (box9, 1 x 256, this CPU, 2026-11-25) on the obstacle, still creeping up in
+# turbulence and the wind (docs/protocol.md says how its check was read).
 # Every table cell records whether its plain learner's return plateaued at this budget on
 # the tables' seeds, and the README says where it did not.
 BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
