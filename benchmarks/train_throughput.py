@@ -173,7 +173,9 @@ def main(argv: list[str] | None = None) -> int:
         seeds = ("one seed" if args.seeds == 1 else
                  f"{args.seeds} seeds in one vmapped program (env steps/s and updates/s per "
                  "seed; 'all seeds': together; GFLOP/s: all seeds)")
-        print(f"{seeds}, {args.scenario}, default learner settings, learning from the first "
+        settings = ("default learner settings, MAAC's as --maac-updates names"
+                    if args.maac_updates else "default learner settings")
+        print(f"{seeds}, {args.scenario}, {settings}, learning from the first "
               "step (the rate of a run after its warm-up)")
         first = args.variants[0]
         together = f" {'all seeds':>12}" if args.seeds > 1 else ""
