@@ -141,6 +141,13 @@ def made_parts(settings: Any, out: Path, stem: str) -> list[dict[str, Any]]:
     return sorted(found, key=lambda part: settings.seeds.index(part["settings"]["seeds"][0]))
 
 
+def part_made(settings: Any, out: Path, stem: str, seeds: tuple[int, ...]) -> bool:
+    """Whether the cell named ``stem`` has its part on ``seeds`` in ``out`` (made with
+    ``settings``)."""
+    return any(tuple(part["settings"]["seeds"]) == seeds
+               for part in made_parts(settings, out, stem))
+
+
 def parts_cover(settings: Any, parts: list[dict[str, Any]]) -> bool:
     """Whether ``parts`` hold every seed of ``settings`` exactly once."""
     seeds = [seed for part in parts for seed in part["settings"]["seeds"]]

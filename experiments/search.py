@@ -62,6 +62,7 @@ from ledger import (
     log,
     made_parts,
     open_experiment,
+    part_made,
     part_path,
     part_seeds_from,
     part_settings,
@@ -384,9 +385,7 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
     and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
     seeds = settings.part_seeds
     runs = len(settings.grid_values) * len(seeds)
-    train = [(s, a) for s, a in todo
-             if not any(tuple(part["settings"]["seeds"]) == seeds
-                        for part in made_parts(settings, out, f"{s}-{a}"))]
+    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds)]
     log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
         f"{len(train)} to train ({runs} runs each)")
     progress = Progress([(part_path(out, f"{s}-{a}", seeds).stem, a,

@@ -94,6 +94,7 @@ from ledger import (
     log,
     made_parts,
     open_experiment,
+    part_made,
     part_path,
     part_seeds_from,
     part_settings,
@@ -294,8 +295,7 @@ def cell_stem(scenario: str, algo: str, variant: str) -> str:
 
 def job_part_made(out: Path, job: Job, settings: Settings, seeds: tuple[int, ...]) -> bool:
     """Whether every variant of ``job`` has its part on ``seeds`` in ``out``."""
-    return all(any(tuple(part["settings"]["seeds"]) == seeds for part in
-                   made_parts(settings, out, cell_stem(job.scenario, job.algo, variant)))
+    return all(part_made(settings, out, cell_stem(job.scenario, job.algo, variant), seeds)
                for variant in job.variants)
 
 
