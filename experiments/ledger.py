@@ -96,13 +96,14 @@ def settings_record(settings: Any) -> dict[str, Any]:
 # Settings that choose which cells an invocation makes, or how they are summarised, but
 # not what a cell holds: a cell made by a narrower or wider invocation (or one checked
 # against other candidate budgets) is kept, not trained again.
-NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds")
+NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds", "part_values")
 
 
-# A program too long for one sitting can be made in parts by seeds (``--part-seeds``): each
-# part is the program on some of the seeds, kept in ``<out>/parts/`` until the parts cover
-# every seed, then joined into the cell one program would have made (each run depends only
-# on its seed and parameters) and deleted.
+# A program too long for one sitting can be made in parts (``--part-seeds``, and for a search
+# ``--part-values``): each part is the program on some of the seeds (and of the searched
+# values), kept in ``<out>/parts/`` until the parts cover every run, then joined into the
+# cell one program would have made (each run depends only on its seed and parameters) and
+# deleted.
 PARTS = "parts"
 
 
@@ -118,9 +119,14 @@ def part_seeds_from(requested: list[int] | None, seeds: tuple[int, ...], what: s
     return () if part == tuple(sorted(seeds)) else part
 
 
-def part_path(out: Path, stem: str, seeds: tuple[int, ...]) -> Path:
-    """Where the part on ``seeds`` of the cell named ``stem`` is kept."""
-    return out / PARTS / f"{stem}-seeds-{'-'.join(str(seed) for seed in seeds)}.json"
+def part_path(out: Path, stem: str, seeds: tuple[int, ...], values: tuple[float, ...] = ()
+              ) -> Path:
+    """Where the part on ``seeds`` (and, when only some, the searched ``values``) of the
+    cell named ``stem`` is kept."""
+    name = f"{stem}-seeds-{'-'.join(str(seed) for seed in seeds)}"
+    if values:
+        name += f"-values-{'-'.join(f'{value:g}' for value in values)}"
+    return out / PARTS / f"{name}.json"
 
 
 def part_settings(settings: Any, seeds: tuple[int, ...]) -> Any:
@@ -128,40 +134,63 @@ def part_settings(settings: Any, seeds: tuple[int, ...]) -> Any:
     return dataclasses.replace(settings, seeds=tuple(seeds), part_seeds=())
 
 
+def part_values_of(part: dict[str, Any]) -> tuple[float, ...]:
+    """The searched values a part was trained on when it holds only some (``()``: all of
+    them, as every part made before ``--part-values`` existed)."""
+    return tuple(float(value) for value in part.get("part_values", ()))
+
+
 def made_parts(settings: Any, out: Path, stem: str) -> list[dict[str, Any]]:
     """The parts of the cell named ``stem`` in ``out`` made with ``settings`` on some of its
-    seeds, in the order of their first seed; parts of other settings are left out."""
+    seeds, in the order of their first seed (then of their first value); parts of other
+    settings are left out."""
     found = []
     for path in sorted((out / PARTS).glob(f"{stem}-seeds-*.json")):
         part = read_json(path)
         seeds = tuple((part or {}).get("settings", {}).get("seeds", ()))
-        if (seeds and set(seeds) <= set(settings.seeds) and path == part_path(out, stem, seeds)
+        if (seeds and set(seeds) <= set(settings.seeds)
+                and path == part_path(out, stem, seeds, part_values_of(part))
                 and cell_is_current(part, settings_record(part_settings(settings, seeds)))):
             found.append(part)
-    return sorted(found, key=lambda part: settings.seeds.index(part["settings"]["seeds"][0]))
+    return sorted(found, key=lambda part: (settings.seeds.index(part["settings"]["seeds"][0]),
+                                           part_values_of(part)))
 
 
-def part_made(settings: Any, out: Path, stem: str, seeds: tuple[int, ...]) -> bool:
-    """Whether the cell named ``stem`` has its part on ``seeds`` in ``out`` (made with
-    ``settings``)."""
-    return any(tuple(part["settings"]["seeds"]) == seeds
+def part_made(settings: Any, out: Path, stem: str, seeds: tuple[int, ...],
+              values: tuple[float, ...] = ()) -> bool:
+    """Whether the cell named ``stem`` has its part on ``seeds`` (and ``values``) in
+    ``out`` (made with ``settings``)."""
+    return any(tuple(part["settings"]["seeds"]) == seeds and part_values_of(part) == values
                for part in made_parts(settings, out, stem))
 
 
-def parts_cover(settings: Any, parts: list[dict[str, Any]]) -> bool:
-    """Whether ``parts`` hold every seed of ``settings`` exactly once."""
-    seeds = [seed for part in parts for seed in part["settings"]["seeds"]]
-    return sorted(seeds) == sorted(settings.seeds)
+def part_runs(part: dict[str, Any], values: tuple[Any, ...] = (None,)) -> list[tuple]:
+    """The (value, seed) runs a part holds: its values (all of ``values`` where it holds
+    every one) with each of its seeds."""
+    return [(value, seed) for value in (part_values_of(part) or values)
+            for seed in part["settings"]["seeds"]]
+
+
+def parts_cover(settings: Any, parts: list[dict[str, Any]], values: tuple[Any, ...] = (None,)
+                ) -> bool:
+    """Whether ``parts`` hold every run of ``settings`` (each of its seeds with each of
+    ``values``, a search's; ``(None,)`` for a grid that searches none) exactly once."""
+    runs = [run for part in parts for run in part_runs(part, values)]
+    return (len(runs) == len(set(runs))
+            and set(runs) == {(value, seed) for value in values for seed in settings.seeds})
 
 
 def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict[str, Any]:
     """A joined cell's provenance: the parts' devices, commits (each once, in order) and
-    last date, and per part its seeds, device, commit, date and ``times``."""
+    last date, and per part its seeds (and values, where only some), device, commit, date
+    and ``times``."""
     def made(key: str) -> str:
         return "; ".join(dict.fromkeys(str(part[key]) for part in parts))
 
     return {"device": made("device"), "commit": made("commit"), "date": parts[-1]["date"],
             "parts": [{"seeds": part["settings"]["seeds"],
+                       **({"values": list(part_values_of(part))} if part_values_of(part)
+                          else {}),
                        **{k: part[k] for k in ("device", "commit", "date", *times)}}
                       for part in parts]}
 
@@ -169,7 +198,7 @@ def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict
 def discard_parts(out: Path, stem: str, parts: list[dict[str, Any]]) -> None:
     """Deletes the joined ``parts`` of the cell named ``stem`` (and ``parts/`` once empty)."""
     for part in parts:
-        part_path(out, stem, tuple(part["settings"]["seeds"])).unlink()
+        part_path(out, stem, tuple(part["settings"]["seeds"]), part_values_of(part)).unlink()
     if (out / PARTS).is_dir() and not any((out / PARTS).iterdir()):
         (out / PARTS).rmdir()
 

@@ -30,9 +30,13 @@ be made in parts: ``--part-seeds 101`` trains every value on seed 101 alone and 
 part in ``<out>/parts/``; once a pair's parts cover all its seeds, they are joined into the
 pair's cell, the same runs in the same order as one program would hold (every run depends
 only on its seed and value; to float32 rounding, as a program of another size may order its
-arithmetic otherwise), and the parts are deleted. A part's invocation writes no
-summary (it would cover only the pairs it names, over a folder's whole summary); the same
-command without ``--part-seeds`` writes it, training nothing for the pairs whose cells exist.
+arithmetic otherwise), and the parts are deleted. ``--part-values 0 0.3 1`` narrows a part
+further, to some of the values (0, the reference, among them or not), so that a sitting's
+time left after whole parts can still be used; the parts of a pair may then differ in seeds
+and values, as long as together they hold each value on each seed once. A part's
+invocation writes no summary (it would cover only the pairs it names, over a folder's whole
+summary); the same command without ``--part-seeds`` and ``--part-values`` writes it,
+training nothing for the pairs whose cells exist.
 """
 
 from __future__ import annotations
@@ -64,8 +68,10 @@ from ledger import (
     open_experiment,
     part_made,
     part_path,
+    part_runs,
     part_seeds_from,
     part_settings,
+    part_values_of,
     parts_cover,
     parts_made_text,
     plan_pairs,
@@ -103,6 +109,14 @@ class Settings(protocol.Settings):
     variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
     values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
+    # Which of the grid's values (0 among them) this invocation trains, as a part of each
+    # pair with ``part_seeds`` (empty: all of them); not part of what a cell holds.
+    part_values: tuple[float, ...] = ()
+
+    @property
+    def in_parts(self) -> bool:
+        """Whether this invocation trains parts of its pairs rather than whole cells."""
+        return bool(self.part_seeds or self.part_values)
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, self.variant)
@@ -113,22 +127,26 @@ class Settings(protocol.Settings):
         return [0.0, *self.values]
 
 
-def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
-               ) -> dict[str, Any]:
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial,
+               name: str | None = None, values: tuple[float, ...] = ()) -> dict[str, Any]:
+    """The pair's cell: every value of ``settings.grid_values`` (or only ``values``, for a
+    part) on every seed, in one program checkpointed as ``name`` (default: the pair's)."""
     config = settings.config(scenario, algo)
-    values, seeds = settings.grid_values, list(settings.seeds)
-    name, grid_seeds, grid_values = search_grid(config, values, seeds)
-    training = GridTraining(config, grid_seeds, {name: grid_values})
+    values, seeds = list(values or settings.grid_values), list(settings.seeds)
+    parameter, grid_seeds, grid_values = search_grid(config, values, seeds)
+    training = GridTraining(config, grid_seeds, {parameter: grid_values})
     training.compile(not settings.quick)
-    runs = partial.train(training, f"{scenario}-{algo}")
+    runs = partial.train(training, name or f"{scenario}-{algo}")
     history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
                                                       "danger_frequency")}
     reference = runs.history["return"][np.asarray(grid_values) == 0.0]
-    levelled = plateau_or_undetermined(reference)
+    levelled = (plateau_or_undetermined(reference) if len(reference) else
+                {"plateaued": None, "why": "value 0 not in this part"})
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "training": training_record(config),
-        "parameter": name, "grid_seeds": grid_seeds, "grid_values": grid_values,
+        "parameter": parameter, "grid_seeds": grid_seeds, "grid_values": grid_values,
+        **({"part_values": values} if values != settings.grid_values else {}),
         "rows": search_rows(runs, values, grid_values, seeds),
         "env_steps": runs.history["env_steps"][0].tolist(), "history": history,
         "plain_return_plateau": levelled,
@@ -139,13 +157,13 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
 
 
 def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The pair's cell joined from ``parts`` (cells of the same pair on disjoint seeds), or
-    ``None`` while they do not cover ``settings.seeds`` exactly once. The runs are put in the
-    order one program of every seed would hold (values outer, seeds inner), each value's
-    per-seed metrics summarised again over all seeds, and the plateau check made again on
-    value 0's returns over all seeds; the programs' times are added up, and ``parts`` says
-    which seeds were made where, when and at which commit."""
-    if not parts_cover(settings, parts):
+    """The pair's cell joined from ``parts`` (cells of the same pair on disjoint runs), or
+    ``None`` while they do not hold every value on every seed exactly once. The runs are put
+    in the order one program would hold (values outer, seeds inner), each value's per-seed
+    metrics summarised again over all seeds, and the plateau check made again on value 0's
+    returns over all seeds; the programs' times are added up, and ``parts`` says which seeds
+    and values were made where, when and at which commit."""
+    if not parts_cover(settings, parts, tuple(settings.grid_values)):
         return None
     first = parts[0]
     run_at = {(value, seed): (index, position) for index, part in enumerate(parts)
@@ -156,14 +174,15 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
     order = [run_at[(value, seed)] for value, seed in zip(grid_values, grid_seeds, strict=True)]
     history = {m: [parts[i]["history"][m][j] for i, j in order] for m in first["history"]}
     rows = []
-    for index, value in enumerate(settings.grid_values):
+    for value in settings.grid_values:
+        held = [part_row for part in parts for part_row in part["rows"]
+                if part_row["value"] == float(value)]  # the value's rows, one per part
         row: dict[str, Any] = {"value": float(value), "seeds": list(settings.seeds)}
-        for metric in first["rows"][index]:
+        for metric in held[0]:
             if metric in row:
                 continue
-            per_seed = {seed: number for part in parts for seed, number in
-                        zip(part["rows"][index]["seeds"],
-                            part["rows"][index][metric]["per_seed"], strict=True)}
+            per_seed = {seed: number for part_row in held for seed, number in
+                        zip(part_row["seeds"], part_row[metric]["per_seed"], strict=True)}
             row[metric] = summarise(np.array([per_seed[seed] for seed in settings.seeds]),
                                     metric)
         rows.append(row)
@@ -171,7 +190,8 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
     return {
         **{k: first[k] for k in ("scenario", "algo", "budget", "training", "parameter",
                                  "env_steps")},
-        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
+        "settings": settings_record(dataclasses.replace(settings, part_seeds=(),
+                                                        part_values=())),
         "grid_seeds": grid_seeds, "grid_values": grid_values, "rows": rows,
         "history": history, "plain_return_plateau": plateau_or_undetermined(reference),
         "nonfinite_iteration": [parts[i]["nonfinite_iteration"][j] for i, j in order],
@@ -343,6 +363,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="train only these of the seeds, as a part of each pair kept in "
                         "<out>/parts/ and joined into the pair's cell once parts cover all its "
                         "seeds (for a machine that cannot train a whole program at one sitting)")
+    parser.add_argument("--part-values", type=cli.non_negative_float, nargs="+", default=None,
+                        help="train only these of the values (0, the reference, among them or "
+                        "not) on the --part-seeds (default: all of them), as a part joined "
+                        "like those of --part-seeds")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()})")
@@ -376,23 +400,62 @@ def settings_from(args: argparse.Namespace) -> Settings:
     if problem:  # --quick too, as the tables and the budgets refuse
         raise cli.UsageError(problem)
     fields["part_seeds"] = part_seeds_from(args.part_seeds, fields["seeds"], "search")
+    fields["part_values"] = part_values_from(args.part_values, (0.0, *values))
     return Settings(**fields)
+
+
+def part_values_from(requested: list[float] | None, grid_values: tuple[float, ...]
+                     ) -> tuple[float, ...]:
+    """``--part-values`` checked against the search's values (raising
+    :class:`ccrjax.cli.UsageError`): sorted, or ``()`` when none or all are named."""
+    part = tuple(sorted({float(value) for value in requested or ()}))
+    outside = [value for value in part if value not in grid_values]
+    if outside:
+        raise cli.UsageError(f"--part-values {' '.join(f'{v:g}' for v in outside)} not among "
+                             f"the search's values {' '.join(f'{v:g}' for v in grid_values)}")
+    return () if part == tuple(sorted(grid_values)) else part
+
+
+def overlapping_part(settings: Settings, out: Path) -> str | None:
+    """Why the part ``settings`` asks for cannot be joined with the parts in ``out`` (some
+    of its runs are already in another part, so no join would hold each run once), or
+    ``None``; asking again for a part that exists is no overlap (it is skipped)."""
+    seeds, values = settings.part_seeds or settings.seeds, settings.part_values
+    asked = set(part_runs({"settings": {"seeds": seeds}, "part_values": values},
+                          tuple(settings.grid_values)))
+    for scenario in settings.scenarios:
+        for algo in settings.algos:
+            for part in made_parts(settings, out, f"{scenario}-{algo}"):
+                same = (tuple(part["settings"]["seeds"]) == seeds
+                        and part_values_of(part) == values)
+                held = asked & set(part_runs(part, tuple(settings.grid_values)))
+                if held and not same:
+                    value, seed = min(held)
+                    name = part_path(out, f"{scenario}-{algo}", tuple(part["settings"]["seeds"]),
+                                     part_values_of(part)).name
+                    return (f"--part-seeds/--part-values: {scenario}-{algo} already has value "
+                            f"{value:g} on seed {seed} in {PARTS}/{name}; ask for runs that no "
+                            "part holds")
+    return None
 
 
 def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
                 cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
-    """Trains the part on ``settings.part_seeds`` of every pair in ``todo`` that lacks it,
-    and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
-    seeds = settings.part_seeds
-    runs = len(settings.grid_values) * len(seeds)
-    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds)]
-    log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
+    """Trains the part on ``settings.part_seeds`` (all seeds if none) and
+    ``settings.part_values`` (all values if none) of every pair in ``todo`` that lacks it,
+    and joins each pair whose parts then hold all its runs into its cell (into ``cells``)."""
+    seeds, values = settings.part_seeds or settings.seeds, settings.part_values
+    runs = len(values or settings.grid_values) * len(seeds)
+    what = f"seeds {list(seeds)}" + (f", values {list(values)}" if values else "")
+    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds, values)]
+    log(f"{len(todo) - len(train)} of {len(todo)} parts on {what} already made; "
         f"{len(train)} to train ({runs} runs each)")
-    progress = Progress([(part_path(out, f"{s}-{a}", seeds).stem, a,
+    progress = Progress([(part_path(out, f"{s}-{a}", seeds, values).stem, a,
                           runs * settings.budget(a)) for s, a in train])
+    trained = dataclasses.replace(part_settings(settings, seeds), part_values=())
     for index, (scenario, algo) in enumerate(train):
-        path = part_path(out, f"{scenario}-{algo}", seeds)
-        part = train_cell(part_settings(settings, seeds), scenario, algo, partial)
+        path = part_path(out, f"{scenario}-{algo}", seeds, values)
+        part = train_cell(trained, scenario, algo, partial, path.stem, values)
         path.parent.mkdir(exist_ok=True)
         write_atomic(path, json.dumps(part) + "\n")
         partial.discard(path.stem)
@@ -402,8 +465,12 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
         parts = made_parts(settings, out, f"{scenario}-{algo}")
         cell = join_parts(settings, parts) if parts else None
         if cell is None:
-            made = sorted(seed for part in parts for seed in part["settings"]["seeds"])
-            log(f"{scenario}-{algo}: parts made on seeds {made} of {list(settings.seeds)}")
+            made = "; ".join(
+                f"seeds {part['settings']['seeds']}"
+                + (f" values {list(part_values_of(part))}" if part_values_of(part) else "")
+                for part in parts)
+            log(f"{scenario}-{algo}: parts made ({made}) of seeds {list(settings.seeds)} "
+                f"x values {settings.grid_values}")
             continue
         write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
         discard_parts(out, f"{scenario}-{algo}", parts)
@@ -421,6 +488,10 @@ def main(argv: list[str] | None = None) -> int:
         for scenario in settings.scenarios:  # every configuration validated before compiling
             for algo in settings.algos:
                 settings.config(scenario, algo)
+        if settings.in_parts:
+            overlap = overlapping_part(settings, out)
+            if overlap:
+                raise cli.UsageError(overlap)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
@@ -429,19 +500,19 @@ def main(argv: list[str] | None = None) -> int:
         settings, out, runs, f"{len(settings.grid_values)} values x {len(settings.seeds)} "
         f"seeds = {runs} runs each")
     partial = Partial(out, args.checkpoint_minutes)
-    if settings.part_seeds:
+    if settings.in_parts:
         train_parts(settings, out, todo, cells, partial, ledger)
     else:
         cells.update(train_pairs(todo, out, partial, ledger, progress,
                                  lambda s, a: train_cell(settings, s, a, partial)))
     ledger.record(len(todo), finished=True)
-    if settings.part_seeds:  # the summary is the whole grid's, made without --part-seeds
+    if settings.in_parts:  # the summary is the whole grid's, made without parts
         missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
                    if (s, a) not in cells]
-        log((f"parts of {', '.join(missing)} wait in {out / PARTS} for the other seeds; "
+        log((f"parts of {', '.join(missing)} wait in {out / PARTS} for the other runs; "
              if missing else "") + "the summary is written by the same command without "
-            "--part-seeds (it trains nothing for the pairs whose cells exist), naming the "
-            "scenarios and learners to summarise")
+            "--part-seeds and --part-values (it trains nothing for the pairs whose cells "
+            "exist), naming the scenarios and learners to summarise")
         return 0
     ordered = {pair: cells[pair] for pair in
                [(s, a) for s in settings.scenarios for a in settings.algos]}

@@ -683,10 +683,12 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
 
 def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(search, tmp_path,
                                                                           capsys):
-    """``--part-seeds``: each part trains every value on some seeds; the summary waits
-    until the parts cover the pair's seeds, then they are joined into the cell that one
-    program of all seeds makes (the same runs in the same order, rows and plateau check
-    over all seeds) and deleted. A seed outside the search is refused in one line."""
+    """``--part-seeds`` (each part trains every value on some seeds) and ``--part-values``
+    (some of the values on them): the summary waits until the parts hold every value on
+    every seed, then they are joined into the cell that one program of all runs makes (the
+    same runs in the same order, rows and plateau check over all seeds) and deleted. A seed
+    or value outside the search, and a part holding runs another part holds, are refused in
+    one line."""
     common = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence",
               "--algos", "iddpg", "--values", "1"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
@@ -694,21 +696,34 @@ def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(searc
     capsys.readouterr()
     refused(search, [*common, "--part-seeds", "7", "--out", str(parts)], capsys,
             "--part-seeds 7 not among the search's seeds 100-101")
+    refused(search, [*common, "--part-values", "2", "--out", str(parts)], capsys,
+            "--part-values 2 not among the search's values 0 1")
     assert search.main([*common, "--part-seeds", "101", "--out", str(parts)]) == 0
     assert not (parts / "search.json").exists()
     assert not (parts / "cells" / "turbulence-iddpg.json").exists()
     assert [p.name for p in (parts / "parts").iterdir()] == ["turbulence-iddpg-seeds-101.json"]
     assert "parts of turbulence-iddpg wait in" in capsys.readouterr().err
-    assert search.main([*common, "--part-seeds", "100", "--out", str(parts)]) == 0
+    assert search.main([*common, "--part-seeds", "100", "--part-values", "1",
+                        "--out", str(parts)]) == 0
+    assert sorted(p.name for p in (parts / "parts").iterdir()) == [
+        "turbulence-iddpg-seeds-100-values-1.json", "turbulence-iddpg-seeds-101.json"]
+    capsys.readouterr()
+    refused(search, [*common, "--part-seeds", "100", "--part-values", "0", "1",
+                     "--out", str(parts)], capsys,
+            "--part-seeds/--part-values: turbulence-iddpg already has value 1 on seed 100 in "
+            "parts/turbulence-iddpg-seeds-100-values-1.json; ask for runs that no part holds")
+    assert search.main([*common, "--part-seeds", "100", "--part-values", "0",
+                        "--out", str(parts)]) == 0
     assert not (parts / "parts").exists() and not (parts / "search.json").exists()
-    assert "joined from 2 parts" in capsys.readouterr().err
+    assert "joined from 3 parts" in capsys.readouterr().err
     assert search.main([*common, "--out", str(parts)]) == 0  # the summary, training nothing
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
     assert (parts / "search.json").exists()
 
     one = json.loads((whole / "cells" / "turbulence-iddpg.json").read_text())
     joined = json.loads((parts / "cells" / "turbulence-iddpg.json").read_text())
-    assert [p["seeds"] for p in joined["parts"]] == [[100], [101]]
+    assert [(p["seeds"], p.get("values")) for p in joined["parts"]] == [
+        ([100], [0.0]), ([100], [1.0]), ([101], None)]
     for key in ("settings", "grid_seeds", "grid_values", "env_steps", "training", "budget",
                 "nonfinite_iteration", "plain_return_plateau"):
         assert joined[key] == one[key], key
