@@ -12,8 +12,11 @@ whether it finished), rewritten after each program, so a killed one keeps its re
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
 import json
+import os
 import sys
 import time
 import uuid
@@ -96,7 +99,8 @@ def settings_record(settings: Any) -> dict[str, Any]:
 # Settings that choose which cells an invocation makes, or how they are summarised, but
 # not what a cell holds: a cell made by a narrower or wider invocation (or one checked
 # against other candidate budgets) is kept, not trained again.
-NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds", "part_values")
+NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds", "part_values",
+                "controller_episodes")
 
 
 # A program too long for one sitting can be made in parts (``--part-seeds``, and for a search
@@ -197,10 +201,12 @@ def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict
 
 def discard_parts(out: Path, stem: str, parts: list[dict[str, Any]]) -> None:
     """Deletes the joined ``parts`` of the cell named ``stem`` (and ``parts/`` once empty)."""
-    for part in parts:
-        part_path(out, stem, tuple(part["settings"]["seeds"]), part_values_of(part)).unlink()
-    if (out / PARTS).is_dir() and not any((out / PARTS).iterdir()):
-        (out / PARTS).rmdir()
+    for part in parts:  # another invocation in the folder may have joined them just now
+        path = part_path(out, stem, tuple(part["settings"]["seeds"]), part_values_of(part))
+        path.unlink(missing_ok=True)
+    with contextlib.suppress(FileNotFoundError, OSError):  # gone, or holds other parts
+        if not any((out / PARTS).iterdir()):
+            (out / PARTS).rmdir()
 
 
 def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
@@ -264,16 +270,54 @@ def cell_budget(cell: dict[str, Any]) -> int | None:
     return int(steps[-1]) if steps else None
 
 
-def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:
-    """Whether the stored ``cell`` is what settings ``record`` would make: the same
-    :func:`cell_identity`, and, for cells that store one (cells made before it was stored
-    do not), the same :func:`training_record` as the current code gives."""
-    if not cell or not isinstance(cell.get("settings"), dict) or cell.get("algo") not in ALGOS:
-        return False
+def why_not_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> str | None:
+    """Why the stored ``cell`` is not what settings ``record`` would make (``None`` if it
+    is): none made, or the settings or training parameters that differ. A cell is current
+    with the same :func:`cell_identity` and, for cells that store one (cells made before it
+    was stored do not), the same :func:`training_record` as the current code gives."""
+    if not cell:
+        return "none made"
+    if not isinstance(cell.get("settings"), dict) or cell.get("algo") not in ALGOS:
+        return "not a cell"
+
+    def differing(made: dict[str, Any], wanted: dict[str, Any]) -> str:
+        return ", ".join(sorted(k for k in made.keys() | wanted.keys()
+                                if made.get(k) != wanted.get(k)))
+
     algo = cell["algo"]
-    if cell_identity(cell["settings"], algo, cell_budget(cell)) != cell_identity(record, algo):
-        return False
-    return "training" not in cell or cell["training"] == expected_training(cell, record)
+    made, wanted = cell_identity(cell["settings"], algo, cell_budget(cell)), cell_identity(
+        record, algo)
+    if made != wanted:
+        return f"made with other {differing(made, wanted)}"
+    if "training" in cell and cell["training"] != (expected := expected_training(cell, record)):
+        return (f"trained with other {differing(cell['training'], expected)} than the code "
+                "now gives")
+    return None
+
+
+def cell_is_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> bool:
+    """Whether the stored ``cell`` is what settings ``record`` would make
+    (:func:`why_not_current`)."""
+    return why_not_current(cell, record) is None
+
+
+def add_no_train_option(parser: Any) -> None:
+    """``--no-train``, the same in every experiment that summarises cells."""
+    parser.add_argument("--no-train", action="store_true",
+                        help="train nothing: write the summary from the cells in --out, or "
+                        "say in one line which are missing or were made otherwise (so that a "
+                        "changed setting or default never starts a long retraining unasked)")
+
+
+def refuse_untrained(problems: list[str], cells: int, out: Path) -> None:
+    """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` naming the ``problems``
+    (``"<cell>: <why not current>"``) among the ``cells`` the summary needs, if any."""
+    if problems:
+        shown = "; ".join(problems[:4]) + (f"; and {len(problems) - 4} more"
+                                           if len(problems) > 4 else "")
+        raise cli.UsageError(f"--no-train: {len(problems)} of the {cells} cells in {out} "
+                             f"that the summary needs are not current ({shown}): run without "
+                             "--no-train to train them")
 
 
 def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
@@ -442,9 +486,25 @@ def check_experiment(folder: Path, experiment: str, settings: dict[str, Any],
     return None
 
 
+@contextlib.contextmanager
+def locked(folder: Path) -> Iterator[None]:
+    """Holds an exclusive lock on ``folder`` (``flock`` on the directory itself: no lock
+    file among the results) while the block runs, so that invocations working in the same
+    folder at once take turns."""
+    descriptor = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
+
+
 class Ledger:
     """The invocation records of ``out`` made with ``settings`` (a dataclass): the earlier
-    ones (dropped when the settings changed) and this one, kept up to date."""
+    ones (dropped when the settings changed) and this one, kept up to date. Invocations
+    running in the same folder at once (parts of a grid side by side) each keep the
+    others' records: every update re-reads the file under a lock and replaces only its own.
+    """
 
     def __init__(self, out: Path, settings: Any, command: str, experiment: str) -> None:
         self.out = out
@@ -458,17 +518,31 @@ class Ledger:
                         "command": command, "commit": git_commit(), "device": device_name(),
                         "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),
                         "finished": False, "programs_trained": 0, "wall_time_s": 0.0}
+        self.position: int | None = None  # where this record stands among the others
 
     @property
     def invocations(self) -> list[dict[str, Any]]:
-        return [*self.previous, self.current]
+        at = len(self.previous) if self.position is None else self.position
+        return [*self.previous[:at], self.current, *self.previous[at:]]
 
     def record(self, trained: int, finished: bool = False) -> None:
         self.current.update(wall_time_s=time.perf_counter() - self.start,
                             programs_trained=trained, finished=finished)
-        write_atomic(self.out / INVOCATIONS,
-                     json.dumps({"experiment": self.experiment, "settings": self.settings,
-                                 "invocations": self.invocations}, indent=1) + "\n")
+        with locked(self.out):
+            on_disk = read_json(self.out / INVOCATIONS)
+            if (isinstance(on_disk, dict) and isinstance(on_disk.get("settings"), dict)
+                    and isinstance(on_disk.get("invocations"), list)
+                    and same_cells(on_disk["settings"], self.settings)):
+                # The file as it is now, less this invocation (kept in its place): earlier
+                # records, and those of invocations in the same folder since this one began.
+                ids = [record.get("id") for record in on_disk["invocations"]]
+                self.position = (ids.index(self.current["id"]) if self.current["id"] in ids
+                                 else None)
+                self.previous = [record for record in on_disk["invocations"]
+                                 if record.get("id") != self.current["id"]]
+            write_atomic(self.out / INVOCATIONS,
+                         json.dumps({"experiment": self.experiment, "settings": self.settings,
+                                     "invocations": self.invocations}, indent=1) + "\n")
 
 
 def duration(seconds: float) -> str:

@@ -56,6 +56,7 @@ from ledger import (
     Partial,
     Progress,
     add_checkpoint_option,
+    add_no_train_option,
     add_out_options,
     cell_is_current,
     cell_path,
@@ -76,9 +77,11 @@ from ledger import (
     parts_made_text,
     plan_pairs,
     read_json,
+    refuse_untrained,
     settings_record,
     train_pairs,
     training_record,
+    why_not_current,
 )
 
 from ccrjax import cli
@@ -378,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=protocol.quick_help())
     add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
+    add_no_train_option(parser)
     return parser
 
 
@@ -489,9 +493,19 @@ def main(argv: list[str] | None = None) -> int:
             for algo in settings.algos:
                 settings.config(scenario, algo)
         if settings.in_parts:
+            if args.no_train:
+                raise cli.UsageError("--no-train trains nothing, so it cannot make parts "
+                                     "(--part-seeds, --part-values)")
             overlap = overlapping_part(settings, out)
             if overlap:
                 raise cli.UsageError(overlap)
+        if args.no_train:
+            record = settings_record(settings)
+            pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
+            whys = {f"{s}-{a}": why_not_current(read_json(cell_path(out, s, a)), record)
+                    for s, a in pairs}
+            refuse_untrained([f"{pair}: {why}" for pair, why in whys.items() if why],
+                             len(pairs), out)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)

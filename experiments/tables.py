@@ -85,6 +85,7 @@ from ledger import (
     Partial,
     Progress,
     add_checkpoint_option,
+    add_no_train_option,
     add_out_options,
     cell_is_current,
     check_quick_out,
@@ -101,8 +102,10 @@ from ledger import (
     parts_cover,
     parts_made_text,
     read_json,
+    refuse_untrained,
     settings_record,
     training_record,
+    why_not_current,
 )
 from PIL import Image, ImageDraw, ImageFont
 from reference_controllers import evaluate_controller
@@ -977,6 +980,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "<out>/parts/ and joined into its cells once parts cover all their "
                         "seeds (for a machine that cannot train a whole program at one sitting)")
     add_checkpoint_option(parser)
+    add_no_train_option(parser)
     return parser
 
 
@@ -1057,7 +1061,19 @@ def main(argv: list[str] | None = None) -> int:
                 problems.append(str(error))
         if problems:
             raise cli.UsageError("; and ".join(problems))
-        return validated(dataclasses.replace(settings, **chosen))
+        settings = validated(dataclasses.replace(settings, **chosen))
+        if args.no_train:
+            if settings.part_seeds:
+                raise cli.UsageError("--no-train trains nothing, so it cannot make parts "
+                                     "(--part-seeds)")
+            record = settings_record(settings)
+            cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings)
+                     for variant in job.variants]
+            whys = {cell_stem(*cell): why_not_current(read_json(cell_path(out, *cell)), record)
+                    for cell in cells}
+            refuse_untrained([f"{stem}: {why}" for stem, why in whys.items() if why],
+                             len(cells), out)
+        return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))

@@ -681,6 +681,33 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
     assert text.endswith("wind, MADDPG, lam 3, seed 101, from iteration 7.")
 
 
+def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_path):
+    """Two invocations working in one folder at once (parts of a grid side by side): every
+    update of one keeps the other's record, each in the place it began; and parts that the
+    other invocation has just joined and deleted are no error to delete again."""
+    import ledger
+
+    settings = search.settings_from(search.build_parser().parse_args(
+        ["--variant", "pessimistic", "--quick"]))
+    first = ledger.Ledger(tmp_path, settings, "first", "search")
+    first.record(0)
+    second = ledger.Ledger(tmp_path, settings, "second", "search")
+    second.record(0)
+    first.record(1, finished=True)  # written from a view that began before the second
+    second.record(1)
+    records = json.loads((tmp_path / "invocations.json").read_text())["invocations"]
+    assert [(r["command"], r["finished"]) for r in records] == [("first", True),
+                                                                 ("second", False)]
+    assert [r["command"] for r in first.invocations] == ["first", "second"]
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "other-seeds-3.json").write_text("{}")
+    ledger.discard_parts(tmp_path, "x", [{"settings": {"seeds": [1]}}])  # already gone
+    assert (tmp_path / "parts" / "other-seeds-3.json").exists()
+    (tmp_path / "parts" / "other-seeds-3.json").unlink()
+    ledger.discard_parts(tmp_path, "x", [{"settings": {"seeds": [2]}}])
+    assert not (tmp_path / "parts").exists()
+
+
 def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(search, tmp_path,
                                                                           capsys):
     """``--part-seeds`` (each part trains every value on some seeds) and ``--part-values``
@@ -694,6 +721,14 @@ def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(searc
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     assert search.main([*common, "--out", str(whole)]) == 0
     capsys.readouterr()
+    refused(search, [*common, "--no-train", "--out", str(parts)], capsys,
+            "--no-train: 1 of the 1 cells in", "turbulence-iddpg: none made")
+    refused(search, [*common, "--no-train", "--values", "2", "--out", str(whole)], capsys,
+            "turbulence-iddpg: made with other values")
+    refused(search, [*common, "--no-train", "--part-seeds", "100", "--out", str(whole)],
+            capsys, "--no-train trains nothing, so it cannot make parts")
+    assert search.main([*common, "--no-train", "--out", str(whole)]) == 0  # its summary
+    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
     refused(search, [*common, "--part-seeds", "7", "--out", str(parts)], capsys,
             "--part-seeds 7 not among the search's seeds 100-101")
     refused(search, [*common, "--part-values", "2", "--out", str(parts)], capsys,

@@ -127,6 +127,20 @@ def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run,
     kept = out / "cells" / "turbulence-iddpg-plain.json"
     before = kept.read_text()
     capsys.readouterr()
+    # --no-train summarises or says, in one line before anything compiles, what is missing
+    # or was made otherwise (here every cell, under another lambda).
+    for argv, fragments in (
+            ([], ("--no-train: 1 of the 27 cells in", "strong_wind-maac-ccr: none made",
+                  "run without --no-train to train them")),
+            (["--lam", "2"], ("--no-train: 27 of the 27 cells",
+                              "hidden_obstacle-iddpg-plain: made with other lam;",
+                              "; and 23 more")),
+            (["--part-seeds", "0"], ("--no-train trains nothing, so it cannot make parts",))):
+        with pytest.raises(SystemExit) as exit_:
+            tables.main(["--quick", "--no-train", *argv, "--out", str(out)])
+        assert exit_.value.code == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and all(f in lines[0] for f in fragments), lines
     assert tables.main(["--quick", "--out", str(out)]) == 0
     log = capsys.readouterr().err
     assert "17 of 18 programs already done; 1 to train" in log
@@ -134,6 +148,8 @@ def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run,
     assert kept.read_text() == before
     runs = json.loads((out / "tables.json").read_text())["invocations"]
     assert [(r["programs_trained"], r["finished"]) for r in runs] == [(18, True), (1, True)]
+    assert tables.main(["--quick", "--no-train", "--out", str(out)]) == 0
+    assert "18 of 18 programs already done; 0 to train" in capsys.readouterr().err
 
 
 def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
