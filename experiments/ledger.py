@@ -309,13 +309,20 @@ def add_no_train_option(parser: Any) -> None:
                         "changed setting or default never starts a long retraining unasked)")
 
 
-def refuse_untrained(problems: list[str], cells: int, out: Path) -> None:
-    """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` naming the ``problems``
-    (``"<cell>: <why not current>"``) among the ``cells`` the summary needs, if any."""
+def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path,
+                     parts: str = "") -> None:
+    """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` when something would
+    have to be trained: a part asked for (``parts`` names its options), or any of the
+    named ``cells`` (name to path) the summary needs that is not what ``record`` would make
+    (:func:`why_not_current`), naming each and why."""
+    if parts:
+        raise cli.UsageError(f"--no-train trains nothing, so it cannot make parts ({parts})")
+    problems = [f"{name}: {why}" for name, path in cells.items()
+                if (why := why_not_current(read_json(path), record))]
     if problems:
         shown = "; ".join(problems[:4]) + (f"; and {len(problems) - 4} more"
                                            if len(problems) > 4 else "")
-        raise cli.UsageError(f"--no-train: {len(problems)} of the {cells} cells in {out} "
+        raise cli.UsageError(f"--no-train: {len(problems)} of the {len(cells)} cells in {out} "
                              f"that the summary needs are not current ({shown}): run without "
                              "--no-train to train them")
 

@@ -81,7 +81,6 @@ from ledger import (
     settings_record,
     train_pairs,
     training_record,
-    why_not_current,
 )
 
 from ccrjax import cli
@@ -425,8 +424,7 @@ def overlapping_part(settings: Settings, out: Path) -> str | None:
     of its runs are already in another part, so no join would hold each run once), or
     ``None``; asking again for a part that exists is no overlap (it is skipped)."""
     seeds, values = settings.part_seeds or settings.seeds, settings.part_values
-    asked = set(part_runs({"settings": {"seeds": seeds}, "part_values": values},
-                          tuple(settings.grid_values)))
+    asked = {(value, seed) for value in values or settings.grid_values for seed in seeds}
     for scenario in settings.scenarios:
         for algo in settings.algos:
             for part in made_parts(settings, out, f"{scenario}-{algo}"):
@@ -492,20 +490,12 @@ def main(argv: list[str] | None = None) -> int:
         for scenario in settings.scenarios:  # every configuration validated before compiling
             for algo in settings.algos:
                 settings.config(scenario, algo)
-        if settings.in_parts:
-            if args.no_train:
-                raise cli.UsageError("--no-train trains nothing, so it cannot make parts "
-                                     "(--part-seeds, --part-values)")
-            overlap = overlapping_part(settings, out)
-            if overlap:
-                raise cli.UsageError(overlap)
         if args.no_train:
-            record = settings_record(settings)
-            pairs = [(s, a) for s in settings.scenarios for a in settings.algos]
-            whys = {f"{s}-{a}": why_not_current(read_json(cell_path(out, s, a)), record)
-                    for s, a in pairs}
-            refuse_untrained([f"{pair}: {why}" for pair, why in whys.items() if why],
-                             len(pairs), out)
+            refuse_untrained({f"{s}-{a}": cell_path(out, s, a) for s in settings.scenarios
+                              for a in settings.algos}, settings_record(settings), out,
+                             "--part-seeds, --part-values" if settings.in_parts else "")
+        elif settings.in_parts and (overlap := overlapping_part(settings, out)):
+            raise cli.UsageError(overlap)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)

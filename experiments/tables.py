@@ -105,7 +105,6 @@ from ledger import (
     refuse_untrained,
     settings_record,
     training_record,
-    why_not_current,
 )
 from PIL import Image, ImageDraw, ImageFont
 from reference_controllers import evaluate_controller
@@ -1063,16 +1062,11 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError("; and ".join(problems))
         settings = validated(dataclasses.replace(settings, **chosen))
         if args.no_train:
-            if settings.part_seeds:
-                raise cli.UsageError("--no-train trains nothing, so it cannot make parts "
-                                     "(--part-seeds)")
-            record = settings_record(settings)
             cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings)
                      for variant in job.variants]
-            whys = {cell_stem(*cell): why_not_current(read_json(cell_path(out, *cell)), record)
-                    for cell in cells}
-            refuse_untrained([f"{stem}: {why}" for stem, why in whys.items() if why],
-                             len(cells), out)
+            refuse_untrained({cell_stem(*cell): cell_path(out, *cell) for cell in cells},
+                             settings_record(settings), out,
+                             "--part-seeds" if settings.part_seeds else "")
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
