@@ -24,7 +24,7 @@ import pytest
 
 from ccrjax import evaluate, train
 from ccrjax.run.checkpoint import Checkpoints
-from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics
+from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics, tree_commit
 from ccrjax.training import make_train
 
 TINY = [
@@ -157,6 +157,31 @@ def test_a_finished_run_leaves_everything_in_its_folder(finished_run):
     assert any((out / "tensorboard" / "seed_3").glob("events.out.tfevents.*"))
     assert (out / "checkpoints" / str(FINAL_STEPS)).is_dir()
     assert len(list((out / "checkpoints").iterdir())) == 3  # the last --keep-checkpoints
+
+
+def test_the_recorded_commit_is_dirty_for_changed_code_but_not_for_changed_results(tmp_path):
+    def git(*args: str) -> None:
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=tmp_path,
+                       check=True, capture_output=True)
+
+    (tmp_path / "ccrjax").mkdir()
+    (tmp_path / "experiments" / "results" / "search").mkdir(parents=True)
+    code = tmp_path / "ccrjax" / "train.py"
+    record = tmp_path / "experiments" / "results" / "search" / "invocations.json"
+    code.write_text("x = 1\n")
+    record.write_text("[]\n")
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-qm", "first")
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=tmp_path, capture_output=True,
+                          text=True, check=True).stdout.strip()
+    assert tree_commit(tmp_path) == head
+    record.write_text("[1]\n")  # another program's invocation record: still clean
+    (tmp_path / "notes.txt").write_text("untracked\n")
+    assert tree_commit(tmp_path) == head
+    code.write_text("x = 2\n")
+    assert tree_commit(tmp_path) == head + "+dirty"
+    assert tree_commit(tmp_path / "ccrjax" / "missing") is None
 
 
 def test_the_command_trains_what_the_library_trains(finished_run):

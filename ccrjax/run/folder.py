@@ -98,6 +98,11 @@ def write_atomic(path: Path, text: str) -> None:
         os.fsync(handle.fileno())
 
 
+RESULT_PATHS = ("experiments/results",)
+"""Tracked folders of results, not code: a program writing into them beside another one that
+starts must not make the other's commit read ``+dirty``."""
+
+
 @functools.cache
 def git_commit() -> str | None:
     """The commit of the ccrjax source tree (with ``+dirty`` if it has changes), if any.
@@ -110,15 +115,25 @@ def git_commit() -> str | None:
     history is not the one it came from (a remote machine that receives the working tree)."""
     if named := os.environ.get("CCRJAX_COMMIT"):
         return named
-    root = Path(ccrjax.__file__).resolve().parent.parent
+    return tree_commit(Path(ccrjax.__file__).resolve().parent.parent)
+
+
+def tree_commit(root: Path) -> str | None:
+    """``HEAD`` of the git tree at ``root``, with ``+dirty`` if a tracked file outside
+    ``RESULT_PATHS`` differs from it; ``None`` where ``root`` is not in a git tree.
+
+    Result files are left out because experiments write them while others run: two search
+    programs started side by side each rewrite their folder's ``invocations.json``, and the
+    second to start would otherwise label its results as made from uncommitted code."""
+    excluded = [f":(exclude){path}" for path in RESULT_PATHS]
     try:
         commit = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10,
             check=True,
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-            capture_output=True, text=True, timeout=10, check=True,
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", *excluded],
+            cwd=root, capture_output=True, text=True, timeout=10, check=True,
         ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return None
