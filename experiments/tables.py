@@ -9,26 +9,27 @@
 Trains the grid 3 scenarios x 3 learners x 3 variants (plain, pessimistic, CCR) under
 the protocol of ``docs/protocol.md`` (``experiments/protocol.py``): the tables' seeds
 0-9, each learner's budget (chosen on the plain learners), learning from the 25,600th
-transition, MAAC at the original's update settings (4 updates of batch 1024 every 100
-steps), CCR's lambda and the pessimistic penalty as selected by their searches
-(``experiments/search.py``, on the disjoint selection seeds; ``--lam`` and ``--penalty``
-override). Per scenario and learner, two programs: plain and pessimistic together (plain
-is the pessimistic transform with penalty 0, exactly), and CCR; each trains all its
-runs at once, sharded over every device (:mod:`ccrjax.training.grid`); while one program trains,
-the next one compiles.
+transition, MAAC at 1 update of batch 256 every 100 steps (the protocol's amendment of
+2026-11-25, from cost alone; the original's is 4 of batch 1024), CCR's lambda and the
+pessimistic penalty as selected by their searches (``experiments/search.py``, on the
+disjoint selection seeds; ``--lam`` and ``--penalty`` override). Per scenario and
+learner, two programs: plain and pessimistic together (plain is the pessimistic transform
+with penalty 0, exactly), and CCR; each trains all its runs at once, sharded over every
+device (:mod:`ccrjax.training.grid`); while one program trains, the next one compiles.
 
-Cost, measured on this project's 2-core CPU with nothing beside it. A program of many
-vmapped runs trained fewer steps per second in all than one seed alone (measured on
-different days, so the ratio is rough)
-(``benchmarks/train_throughput.py``, hidden obstacle: one seed, 2026-11-24, commit
-``8ee8675``, IDDPG about 12,500, MADDPG 8,400 and MAAC 420 environment steps per second;
-10 seeds in one program, ``--seeds 10 --iterations 4 --repeats 3``, 2026-11-25, commit
-``1d34e41``, MADDPG 6,760 and MAAC 344 in all; the lambda search's strong-wind IDDPG
-program, 21 runs of 3M steps, trained in 2h15m on 2026-11-23: about 7,800 in all). The
-grid is 30 runs of 3,000,000 steps per scenario and learner, 270M steps per learner, so on
-that CPU it would take about 10 h (IDDPG) + 11 h (MADDPG) + 218 h (MAAC), about 10 days:
-it is meant for a GPU (one seed on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG
-about 156,000 and MAAC about 36,000 environment steps per second). Cells are resumable
+Cost, measured on this project's 2-core CPU (2 cores, no GPU). The grid is 18 programs,
+270 runs of 3,000,000 environment steps (30 per scenario and learner: 3 variants x 10
+seeds). A run costs about 4 to 6.5 minutes of the whole CPU for IDDPG, 7 for MADDPG and 7
+to 9 for MAAC at the protocol's 1 x 256 (``benchmarks/train_throughput.py``: one IDDPG seed
+alone 12,500 environment steps per second, 2026-11-24, commit ``8ee8675``; 3 seeds in one
+program, 2026-11-25, commit ``4cb49df``: MADDPG 7,200 and MAAC 5,800 in all; the lambda
+search's CCR IDDPG program of 21 runs, 2h15m alone on 2026-11-23; MAAC search parts of 4
+and 5 runs, two programs side by side on the two cores, 58 and 73 minutes on 2026-11-26,
+about 7.3 minutes of the whole CPU per run), so the whole grid takes about 6 to 10 h
+(IDDPG) + 10.5 h (MADDPG) + 11 to 13 h (MAAC): about 28 to 33 hours of this CPU, made in
+parts over several sessions (``docs/experiments.md``). On a GPU it is far shorter (one seed
+on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG about 156,000 and MAAC at the
+original's 4 x 1024 about 36,000 environment steps per second). Cells are resumable
 across invocations, so the grid can be spread over several; the program in training is
 checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
 from there (:mod:`ccrjax.run.grid_checkpoint`).
