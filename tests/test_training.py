@@ -285,4 +285,7 @@ def test_rounded_budgets_are_reported_not_hidden():
 def test_the_non_finite_report_names_the_earliest_iteration_and_its_seed():
     assert first_nonfinite(np.array([-1, -1]), [3, 4]) is None
     assert first_nonfinite(np.array([-1, 9, 5, 5]), [10, 11, 12, 13]) == NonFinite(5, 12)
+    # As training hands it over: int32 on the device, a run that stayed finite first.
+    iterations = jnp.array([-1, 9, 5, 5], dtype=jnp.int32)
+    assert first_nonfinite(iterations, [10, 11, 12, 13]) == NonFinite(5, 12)
     assert "iteration 5 (seed 12)" in NonFinite(5, 12).message()

@@ -57,7 +57,9 @@ class NonFinite:
 def first_nonfinite(nonfinite_iteration: Any, seeds: Sequence[int]) -> NonFinite | None:
     """The earliest non-finite iteration over runs (``nonfinite_iteration``: one per run,
     -1 where the run stayed finite; the first of ``seeds`` on a tie), or ``None``."""
-    bad = np.asarray(jax.device_get(nonfinite_iteration)).reshape(-1)
+    # int64 before the sentinel: JAX hands int32, which cannot hold it (NumPy wraps it to -1,
+    # picking a run that stayed finite, or refuses it, by version).
+    bad = np.asarray(jax.device_get(nonfinite_iteration)).reshape(-1).astype(np.int64)
     if not np.any(bad >= 0):
         return None
     index = int(np.argmin(np.where(bad >= 0, bad, np.iinfo(np.int64).max)))

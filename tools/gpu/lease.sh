@@ -43,7 +43,7 @@ install_wheels() {  # folder, then the modules it provides
 
 setup() {
   install_wheels .whl rliable arch pandas
-  [[ "${1:-}" == "--tests" ]] && install_wheels .whltest brax mpe2 flashbax
+  [[ "${1:-}" == "--tests" ]] && install_wheels .whltest brax mpe2 flashbax pygame
   "$PY" - <<'EOF'
 import jax, flax, optax, orbax.checkpoint, pandas, rliable, sys
 print("python", sys.version.split()[0], "| jax", jax.__version__, "| flax", flax.__version__,
@@ -122,7 +122,7 @@ wait_lanes() {  # seconds
 bench() {
   # `make bench`, alone on the GPU (run it before `start`: lanes beside it would slow it).
   install_wheels .whl rliable arch pandas
-  install_wheels .whltest brax mpe2 flashbax
+  install_wheels .whltest brax mpe2 flashbax pygame
   mkdir -p "$ROOT/checks"
   local bench name
   for bench in "env_throughput.py" "train_throughput.py --variants plain ccr" \
@@ -141,7 +141,7 @@ tests() {
   # use a .venv that a machine without a package index cannot make). Their times are with
   # the lanes sharing the GPU, if any run.
   install_wheels .whl rliable arch pandas
-  install_wheels .whltest brax mpe2 flashbax
+  install_wheels .whltest brax mpe2 flashbax pygame
   mkdir -p "$ROOT/checks"
   local t0
   t0=$SECONDS
