@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import contextlib
 import dataclasses
@@ -74,7 +75,7 @@ def run_stoppable(prog: str, main: Callable[[], int], kept: str) -> int:
     background job), as ``ccrjax.train`` does."""
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        with stop_noticed(prog), sigterm_as_interrupt():
+        with stop_noticed(prog), sigterm_as_interrupt(), interrupts_kept():
             return main()
     except KeyboardInterrupt:
         print(f"{prog}: stopped; {kept}", file=sys.stderr, flush=True)
@@ -128,6 +129,53 @@ def stop_noticed(prog: str) -> Iterator[None]:
         os.close(write)  # the watcher reads the end of the pipe, after any number in it
         watcher.join(timeout=5)
         os.close(read)
+
+
+@contextlib.contextmanager
+def interrupts_kept() -> Iterator[None]:
+    """Within the block a ``KeyboardInterrupt`` that Python would discard is raised again.
+
+    A signal's Python handler runs at the next bytecode, whatever code that is; when it is
+    a garbage-collection callback (JAX registers one) or a ``__del__``, the interpreter
+    prints "Exception ignored in ..." and drops the exception, so a Ctrl-C or SIGTERM
+    would be announced and then lost while the command ran on to its end. Such exceptions
+    reach ``sys.unraisablehook``; this one wakes a helper thread that marks SIGINT as
+    arrived again (answered as Ctrl-C by the commands that use it), and prints nothing.
+    The mark is made from the helper, once the hook has returned: made in the hook
+    (``signal.raise_signal``, ``_thread.interrupt_main``) it would be handled at once,
+    inside the hook, and dropped for good. A mark that lands in such a callback again is
+    dropped and made again."""
+    previous = sys.unraisablehook
+    wake = _thread.allocate_lock()
+    wake.acquire()
+    closing: list[bool] = []
+
+    def interrupt_again() -> None:
+        while True:
+            wake.acquire()  # blocks (without the GIL) until the hook or the exit wakes it
+            if closing:
+                return
+            _thread.interrupt_main(signal.SIGINT)
+
+    def hook(unraisable: Any) -> None:
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type,
+                                                           KeyboardInterrupt):
+            if wake.locked():
+                wake.release()  # the hook's last call: the helper needs the GIL to act
+            return
+        previous(unraisable)
+
+    helper = threading.Thread(target=interrupt_again, name="interrupt-again", daemon=True)
+    helper.start()
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+        closing.append(True)
+        if wake.locked():
+            wake.release()
+        helper.join(timeout=5)
 
 
 @contextlib.contextmanager

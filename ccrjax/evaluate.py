@@ -134,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     cli.enable_compilation_cache(cli.default_cache_dir())
     try:
-        with cli.sigterm_as_interrupt():
+        with cli.sigterm_as_interrupt(), cli.interrupts_kept():
             return evaluate_run(args.run, args.episodes, args.seed, not args.no_pictures)
     except (UsageError, ValueError) as error:
         cli.fail(PROG, str(error))

@@ -883,7 +883,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except UsageError as error:
             cli.fail(PROG, str(error))
     cli.enable_compilation_cache(None if args.no_compilation_cache else args.compilation_cache)
-    with StopRequest() as stop:
+    with StopRequest() as stop, cli.interrupts_kept():
         try:
             folder, spec, record = open_folder(args)
             if stop.requested:

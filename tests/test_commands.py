@@ -300,3 +300,42 @@ def test_the_training_benchmark_refuses_a_malformed_update_setting_in_one_line(
     lines = process.stderr.strip().splitlines()
     assert process.returncode == 2 and len(lines) == 1, process.stderr
     assert "--maac-updates" in lines[0] and "1x256" in lines[0]
+
+
+# A stop whose KeyboardInterrupt is raised inside a garbage-collection callback, where Python
+# prints "Exception ignored" and drops it (JAX registers such a callback: a Ctrl-C landing
+# there was once lost and the search ran on to exit 0).
+STOP_IN_GC_CALLBACK = """
+import gc, signal, sys, time
+from ccrjax import cli
+
+def on_collection(phase, info):
+    if phase == "start" and not raised:
+        raised.append(True)
+        signal.raise_signal(signal.SIGINT)  # handled at the next bytecode: in this callback
+        for _ in range(3):
+            pass
+
+raised = []
+
+def main():
+    gc.callbacks.append(on_collection)
+    gc.collect()
+    gc.callbacks.remove(on_collection)
+    until = time.monotonic() + 10  # work the stop should end within milliseconds
+    while time.monotonic() < until:
+        pass
+    print("ran on", file=sys.stderr)
+    return 0
+
+raise SystemExit(cli.run_stoppable("prog", main, "nothing to keep"))
+"""
+
+
+def test_an_interrupt_raised_where_python_discards_it_still_stops_the_command(
+        subprocess_env):
+    done = subprocess.run([sys.executable, "-c", STOP_IN_GC_CALLBACK], capture_output=True,
+                          text=True, timeout=120, env=subprocess_env, cwd=ROOT)
+    assert done.returncode == cli.INTERRUPTED, done.stderr
+    assert "ran on" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "prog: stopped; nothing to keep"
