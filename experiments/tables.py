@@ -27,12 +27,12 @@ search's CCR IDDPG program of 21 runs, 2h15m alone on 2026-11-23; MAAC search pa
 and 5 runs, two programs side by side on the two cores, 58 and 73 minutes on 2026-11-26,
 about 7.3 minutes of the whole CPU per run), so the whole grid takes about 6 to 10 h
 (IDDPG) + 10.5 h (MADDPG) + 11 to 13 h (MAAC): about 28 to 33 hours of this CPU, made in
-parts over several sessions (``docs/experiments.md``). On a GPU it is far shorter (one seed
-on an H100, ``tools/gpu/measured/``, 2026-11-24: MADDPG about 156,000 and MAAC at the
-original's 4 x 1024 about 36,000 environment steps per second). Cells are resumable
-across invocations, so the grid can be spread over several; the program in training is
-checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed
-from there (:mod:`ccrjax.run.grid_checkpoint`).
+parts over several sessions (``docs/experiments.md``). On a GPU it is far shorter: the
+committed grid was made on an H100 on 2026-11-26 in 30m40s of programs (compiling and
+training; 83 s to 4.2 minutes per scenario and learner, both programs), in two sessions.
+Cells are resumable across invocations, so the grid can be spread over several; the
+program in training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/``
+and resumed from there (:mod:`ccrjax.run.grid_checkpoint`).
 
 A program too long for one sitting (on this project's 2-core CPU the MAAC and MADDPG
 plain-and-pessimistic programs take 2 to 3 hours, and partial checkpoints stay on the machine
@@ -593,7 +593,6 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
                                 for c in programs.values()),
         "devices": sorted({c["device"] for c in cells.values()}),
         "commits": sorted({str(c["commit"]) for c in cells.values()}),
-        "jax_version": jax.__version__,
         "records": records,
         "controllers": [{"scenario": s, "controller": c, **m}
                         for (s, c), m in controllers.items()],
@@ -672,13 +671,13 @@ def tables_markdown(result: dict) -> str:
         "# The paper's Tables I and II, re-run with ccrjax",
         "",
         *([protocol.quick_note(), ""] if settings.get("quick") else []),
-        f"Made on {', '.join(result['devices'])} (jax {result['jax_version']}) at commit(s) "
+        f"Made on {', '.join(result['devices'])} at commit(s) "
         f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
         f"training time add up to {duration(result['programs_seconds'])}. Invocations:",
         "",
-        *(f"* `{run['command']}` at `{run['commit']}` on {run.get('device', '?')}, "
-          f"{run['date']}: trained {run['programs_trained']} of 18 programs, wall time "
-          f"{duration(run['wall_time_s'])}"
+        *(f"* `{run['command']}` at `{run['commit']}` on {run.get('device', '?')} "
+          f"(jax {run.get('jax', '?')}), {run['date']}: trained {run['programs_trained']} "
+          f"of 18 programs, wall time {duration(run['wall_time_s'])}"
           + ("" if run.get("finished", True) else " (stopped before the end)")
           for run in result["invocations"]),
         "",
@@ -734,6 +733,7 @@ def tables_markdown(result: dict) -> str:
         "found no rise: a slow rise smaller than that interval passes). "
         + _convergence_text(not_levelled, undetermined),
         "",
+        *plateau_table(plain_records),
         "### Did training stay finite?",
         "",
         nonfinite_text(result["nonfinite"], f"the {result['runs']} runs"),
@@ -834,6 +834,28 @@ def tables_markdown(result: dict) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def plateau_table(plain_records: list[dict]) -> list[str]:
+    """The plain learners' plateau checks with their sizes: the mean return of the last
+    20% of evaluations, that of the 20% before with its 95% interval, and the change, so
+    a reader sees whether a curve that failed the test rose by a hair or was still
+    learning."""
+    lines = ["| plain learner | return, last 20% | return, 20% before [95% CI] | change | "
+             "levelled off |", "|---|---|---|---|---|"]
+    for r in plain_records:
+        check = r["return_plateau"]
+        name = f"{SCENARIO_NAMES[r['scenario']]}, {LEARNER_NAMES[r['algo']]}"
+        if "last" not in check:
+            lines.append(f"| {name} | | | | undetermined: {check.get('why', '')} |")
+            continue
+        change = check["last"] - check["previous"]
+        verdict = {True: "yes", False: "**no**", None: "undetermined"}[check["plateaued"]]
+        lines.append(
+            f"| {name} | {check['last']:.2f} | {check['previous']:.2f} "
+            f"[{check['ci_low']:.2f}, {check['ci_high']:.2f}] | {change:+.2f} "
+            f"({100 * change / abs(check['previous']):+.1f}%) | {verdict} |")
+    return lines + [""]
 
 
 def _convergence_text(not_levelled: list[dict], undetermined: list[dict]) -> str:

@@ -131,3 +131,25 @@ def test_the_training_danger_share_is_ccrs_over_plains(tables):
     assert share["ci_low"] <= share["mean"] <= share["ci_high"]
     assert 0.25 - 1e-9 <= share["ci_low"] and share["ci_high"] <= 0.30 + 1e-9
     assert np.isfinite([share["ci_low"], share["ci_high"]]).all()
+
+
+def test_the_plateau_table_shows_how_far_each_plain_curve_moved(tables):
+    """A curve that fails the test shows its rise beside the interval it left; one too
+    short to judge says why instead of a number."""
+    rising = np.arange(10.0)[None, :] + 0.1 * np.arange(5.0)[:, None]  # 5 seeds, close
+    flat = np.array([[-10.0] * 10, [-10.5] * 10])
+    records = [
+        {"scenario": "turbulence", "algo": "iddpg",
+         "return_plateau": tables.plateau_or_undetermined(rising)},
+        {"scenario": "strong_wind", "algo": "maac",
+         "return_plateau": tables.plateau_or_undetermined(flat)},
+        {"scenario": "hidden_obstacle", "algo": "maddpg",
+         "return_plateau": tables.plateau_or_undetermined(flat[:1])},
+    ]
+    lines = tables.plateau_table(records)
+    assert len(lines) == 2 + 3 + 1  # header, rows, blank
+    # Last two points 8.0 and 9.0 (+0.2 on average over seeds), the two before 6 and 7.
+    assert lines[2].startswith("| turbulence, IDDPG | 8.70 | 6.70 [")
+    assert "| +2.00 (+29.9%) | **no** |" in lines[2]
+    assert lines[3].endswith("| +0.00 (+0.0%) | yes |")
+    assert "undetermined: plateau needs curves [seeds >= 2" in lines[4]
