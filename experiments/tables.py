@@ -850,11 +850,13 @@ def plateau_table(plain_records: list[dict]) -> list[str]:
             lines.append(f"| {name} | | | | undetermined: {check.get('why', '')} |")
             continue
         change = check["last"] - check["previous"]
+        relative = (f" ({100 * change / abs(check['previous']):+.1f}%)"
+                    if check["previous"] != 0 else "")
         verdict = {True: "yes", False: "**no**", None: "undetermined"}[check["plateaued"]]
         lines.append(
             f"| {name} | {check['last']:.2f} | {check['previous']:.2f} "
-            f"[{check['ci_low']:.2f}, {check['ci_high']:.2f}] | {change:+.2f} "
-            f"({100 * change / abs(check['previous']):+.1f}%) | {verdict} |")
+            f"[{check['ci_low']:.2f}, {check['ci_high']:.2f}] | {change:+.2f}{relative} "
+            f"| {verdict} |")
     return lines + [""]
 
 

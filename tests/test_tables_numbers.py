@@ -153,3 +153,7 @@ def test_the_plateau_table_shows_how_far_each_plain_curve_moved(tables):
     assert "| +2.00 (+29.9%) | **no** |" in lines[2]
     assert lines[3].endswith("| +0.00 (+0.0%) | yes |")
     assert "undetermined: plateau needs curves [seeds >= 2" in lines[4]
+    # A return of exactly 0 before gives the change without a percentage, not an error.
+    zero = tables.plateau_table([{"scenario": "turbulence", "algo": "maac",
+                                  "return_plateau": tables.plateau_or_undetermined(flat * 0)}])
+    assert zero[2].endswith("| +0.00 | yes |")
