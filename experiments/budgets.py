@@ -15,13 +15,25 @@ evaluations lies within the 95% interval of the 20% before). The proposed budget
 smallest candidate from which on every larger candidate plateaus too, ``None`` if the
 return is still moving at ``--steps``.
 
+``--tables-seeds`` runs the longer-budget check of ``docs/protocol.md`` (its amendment of
+2026-11-26): the plain learners alone on the tables' seeds 0-9, 6M steps by default, checked
+at the candidates 3M, 4.5M and 6M; the budget for all is the smallest candidate at which
+every plain learner's check passes (the summary's last line, once the 9 cells exist):
+
+    python experiments/budgets.py --tables-seeds --out experiments/results/longer_budget
+    python experiments/budgets.py --tables-seeds --part-seeds 0 1 --algos iddpg \
+        --scenarios turbulence --out experiments/results/longer_budget --force
+
 Each scenario and learner is one vmapped program. Its cell is written to
 ``<out>/cells/<scenario>-<algo>.json`` when it finishes (curves, checks, proposal, wall
 time, device, commit); a re-run skips the cells made with the same settings, whatever
 scenarios and learners it names, so the grid can be spread over invocations and machines.
 Then ``budgets.json`` (every cell of the folder made with these settings, whichever
 invocation made it, and every invocation), ``budgets.md`` and ``curves_<algo>.png``
-(return, success and danger along training, one line per scenario).
+(return, success and danger along training, one line per scenario). ``--part-seeds`` trains
+a program on some of its seeds (a machine that cannot train a whole program at one
+sitting): each part waits in ``<out>/parts/`` until the parts cover the seeds, then they
+are joined into the cell one program makes (each run depends only on its seed).
 """
 
 from __future__ import annotations
@@ -36,20 +48,33 @@ from typing import Any
 import numpy as np
 import protocol
 from ledger import (
+    PARTS,
     STOPPED_KEPT,
     Partial,
+    Progress,
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
     check_quick_out,
     device_name,
     duration,
+    join_pair_parts,
+    joined_by_seed,
     log,
+    made_parts,
     open_experiment,
+    part_made,
+    part_path,
+    part_seeds_from,
+    part_settings,
+    parts_cover,
+    parts_made_text,
     plan_pairs,
     read_json,
+    seed_order,
     settings_record,
     train_pairs,
+    train_part_programs,
     training_record,
 )
 
@@ -66,6 +91,10 @@ PROG = "python experiments/budgets.py"
 ALL_SCENARIOS = (*SCENARIOS, "nominal")
 CANDIDATE_EVERY = 250_000
 QUICK_CANDIDATE_EVERY = 200
+# The longer-budget check (docs/protocol.md, amendment of 2026-11-26): the plain learners on
+# the tables' seeds for 6M steps, checked at these candidates.
+LONGER_STEPS = 6_000_000
+LONGER_CANDIDATES = (3_000_000, 4_500_000, 6_000_000)
 FINAL_METRICS = ("return", "success_rate", "danger_frequency")
 
 
@@ -75,11 +104,18 @@ class Settings(protocol.Settings):
 
     seeds: tuple[int, ...] = protocol.BUDGET_SEEDS
     candidate_every: int = CANDIDATE_EVERY  # steps between the candidate budgets checked
+    # The candidate budgets named one by one (the longer-budget check's); empty: every
+    # multiple of ``candidate_every``. Not part of what a cell holds (ledger.NOT_IN_CELLS).
+    candidate_budgets: tuple[int, ...] = ()
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, "plain")
 
     def candidates(self, algo: str) -> list[int]:
+        """The candidate budgets checked for learner ``algo``: those named, or every
+        multiple of ``candidate_every``, up to its budget."""
+        if self.candidate_budgets:
+            return [c for c in sorted(self.candidate_budgets) if c <= self.budget(algo)]
         return list(range(self.candidate_every, self.budget(algo) + 1, self.candidate_every))
 
 
@@ -105,13 +141,33 @@ def check_budgets(steps: np.ndarray, returns: np.ndarray, candidates: list[int]
     return checks, proposed
 
 
-def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
-               ) -> dict[str, Any]:
-    """One scenario and learner's plain runs: the curves (checked by :func:`checked`)."""
+def one_budget_for_all(cells: list[dict[str, Any]]) -> dict[str, Any]:
+    """The longer-budget check's rule (docs/protocol.md, amendment of 2026-11-26) over the
+    checked ``cells``: the smallest candidate budget at which every cell's plateau check
+    passes (``budget``), or, if none does, the largest candidate, flagged (``passed``
+    false); ``failing`` names, per candidate, the cells whose check fails there or could not
+    be made."""
+    candidates = sorted({check["budget"] for cell in cells for check in cell["checks"]})
+    failing = {}
+    for budget in candidates:
+        failing[budget] = [
+            f"{cell['scenario']}-{cell['algo']}" for cell in cells
+            if not any(c["budget"] == budget and c["plateaued"] for c in cell["checks"])]
+    passing = [budget for budget in candidates if not failing[budget]]
+    if passing:
+        return {"budget": passing[0], "passed": True, "failing": failing}
+    return {"budget": candidates[-1] if candidates else None, "passed": False,
+            "failing": failing}
+
+
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial,
+               name: str | None = None) -> dict[str, Any]:
+    """One scenario and learner's plain runs on ``settings.seeds``: the curves (checked by
+    :func:`checked`), in one program checkpointed as ``name`` (default: the pair's)."""
     config = settings.config(scenario, algo)
     training = GridTraining(config, settings.seeds)
     training.compile(not settings.quick)
-    runs = partial.train(training, f"{scenario}-{algo}")
+    runs = partial.train(training, name or f"{scenario}-{algo}")
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "training": training_record(config),
@@ -123,6 +179,66 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
+
+
+def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The pair's cell joined from ``parts`` (its cells on disjoint seeds), or ``None``
+    while they do not cover ``settings.seeds`` exactly once: each seed's curves in the order
+    of ``settings.seeds``, the programs' times added up, and which seeds were made where,
+    when and at which commit."""
+    if not parts_cover(settings, parts):
+        return None
+    order = seed_order(parts, settings.seeds)
+    first = parts[0]
+    if any(part["env_steps"] != first["env_steps"] for part in parts):
+        raise ValueError(f"the parts of {first['scenario']}-{first['algo']} were evaluated "
+                         "at different steps; they cannot be one program's runs")
+    times = ("train_s", "compile_s")
+    return {
+        **{k: first[k] for k in ("scenario", "algo", "budget", "training")},
+        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
+        "seeds": list(settings.seeds), "env_steps": first["env_steps"],
+        "curves": {m: joined_by_seed([part["curves"][m] for part in parts], order)
+                   for m in first["curves"]},
+        "nonfinite_iteration": joined_by_seed([part["nonfinite_iteration"] for part in parts],
+                                              order),
+        **{k: sum(part[k] for part in parts) for k in times},
+        **parts_made_text(parts, times),
+    }
+
+
+def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
+                cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
+    """Trains the part on ``settings.part_seeds`` of every pair in ``todo`` that lacks it,
+    and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
+    seeds = settings.part_seeds
+    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds)]
+    log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
+        f"{len(train)} to train ({len(seeds)} runs each, on {device_name()})")
+    progress = Progress([(part_path(out, f"{s}-{a}", seeds).stem, a,
+                          len(seeds) * settings.budget(a)) for s, a in train])
+    trained = part_settings(settings, seeds)
+    train_part_programs(train, out, seeds, (), progress, partial, ledger,
+                        lambda s, a, name: train_cell(trained, s, a, partial, name))
+    join_pair_parts(settings, out, todo, cells, lambda parts: join_parts(settings, parts),
+                    lambda parts: "parts made on seeds "
+                    f"{sorted(seed for part in parts for seed in part['seeds'])} of "
+                    f"{list(settings.seeds)}")
+
+
+def overlapping_part(settings: Settings, out: Path) -> str | None:
+    """Why the part on ``settings.part_seeds`` cannot be joined with the parts in ``out``
+    (another part holds some of its seeds), or ``None``; a part that exists is skipped."""
+    seeds = settings.part_seeds
+    for scenario in settings.scenarios:
+        for algo in settings.algos:
+            for part in made_parts(settings, out, f"{scenario}-{algo}"):
+                held = sorted(set(seeds) & set(part["seeds"]))
+                if held and tuple(part["seeds"]) != seeds:
+                    name = part_path(out, f"{scenario}-{algo}", tuple(part["seeds"])).name
+                    return (f"--part-seeds: {scenario}-{algo} already has seed {held[0]} in "
+                            f"{PARTS}/{name}; ask for seeds that no part holds")
+    return None
 
 
 def checked(cell: dict[str, Any], settings: Settings) -> dict[str, Any]:
@@ -142,16 +258,74 @@ def final_stats(cell: dict[str, Any], metric: str) -> dict[str, Any]:
     return summarise(np.array([curve[-1] for curve in cell["curves"][metric]]), metric)
 
 
+def seeds_text(seeds: list[int]) -> str:
+    """Which seeds a summary's cells were trained on, by purpose."""
+    if tuple(seeds) == protocol.TABLE_SEEDS:
+        return (f"The tables' seeds {seeds} (the longer-budget check of docs/protocol.md, "
+                "amendment of 2026-11-26: the plain learners alone)")
+    return f"Budget seeds {seeds}"
+
+
+def candidates_text(settings: dict[str, Any]) -> str:
+    named = settings.get("candidate_budgets") or ()
+    if named:
+        return "candidate budgets " + ", ".join(f"{c:,}" for c in sorted(named))
+    return f"candidate budgets every {settings['candidate_every']:,} steps"
+
+
+def rule_lines(result: dict[str, Any]) -> list[str]:
+    """Where the candidates are named (the longer-budget check): the check at each
+    candidate per cell, and the budget for all by :func:`one_budget_for_all` once every
+    scenario and learner of the paper has its cell."""
+    cells = result["cells"]
+    candidates = sorted({check["budget"] for cell in cells for check in cell["checks"]})
+    if not candidates or not result["settings"].get("candidate_budgets"):
+        return []
+    lines = ["", "Plateau check at each candidate budget (the last 20% of evaluations up to "
+             "it against the 95% interval of the 20% before; the change is the last "
+             "window's mean return minus the one before):", "",
+             "| learner | scenario | " + " | ".join(f"{c:,}" for c in candidates) + " |",
+             "|---|---|" + "---|" * len(candidates)]
+    for cell in cells:
+        by_budget = {check["budget"]: check for check in cell["checks"]}
+        shown = []
+        for budget in candidates:
+            check = by_budget.get(budget)
+            shown.append("not checked" if check is None else
+                         f"{protocol.PLATEAU_WORDS[check['plateaued']]} "
+                         f"({check['last'] - check['previous']:+.2f})")
+        lines.append(f"| {cell['algo']} | {cell['scenario']} | " + " | ".join(shown) + " |")
+    made = {(cell["scenario"], cell["algo"]) for cell in cells}
+    wanted = {(s, a) for s in SCENARIOS for a in ALGOS}
+    lines.append("")
+    if not wanted <= made:
+        lines.append(f"One budget for all (the smallest candidate at which every plain "
+                     f"learner's check passes): not yet, {len(wanted & made)} of the "
+                     f"{len(wanted)} scenario x learner cells are made.")
+        return lines
+    rule = one_budget_for_all([cell for cell in cells if (cell["scenario"], cell["algo"])
+                               in wanted])
+    if rule["passed"]:
+        lines.append(f"One budget for all (the smallest candidate at which every plain "
+                     f"learner's check passes): **{rule['budget']:,}** steps.")
+    else:
+        failing = rule["failing"][rule["budget"]]
+        lines.append(f"One budget for all: no candidate passes for every plain learner, so "
+                     f"**{rule['budget']:,}** steps, flagged: at it the check fails for "
+                     f"{', '.join(failing)}.")
+    return lines
+
+
 def budgets_markdown(result: dict[str, Any]) -> str:
     settings = result["settings"]
     lines = [
         "# Budgets of the plain learners",
         "",
         *([protocol.quick_note(variants=False), ""] if settings.get("quick") else []),
-        f"Budget seeds {settings['seeds']}; environment steps per seed: "
+        f"{seeds_text(settings['seeds'])}; environment steps per seed: "
         + ", ".join(f"{steps:,} ({algo})" for algo, steps in result["budgets"].items()) + "; "
         f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "
-        f"episodes per seed; candidate budgets every {settings['candidate_every']:,} steps. "
+        f"episodes per seed; {candidates_text(settings)}. "
         "Plateaued: the mean over seeds of the last 20% of evaluations lies within the 95% "
         "Student-t interval of the 20% before. Proposed: the smallest candidate from which "
         "on every candidate plateaus (none: still moving at the end). Final values: mean "
@@ -180,7 +354,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     skipped = [line for cell in result["cells"]
                for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
     runs = sum(len(cell["seeds"]) for cell in result["cells"])
-    lines += ["", nonfinite_text(skipped, f"the {runs} runs")]
+    lines += [*rule_lines(result), "", nonfinite_text(skipped, f"the {runs} runs")]
     return "\n".join(lines) + "\n"
 
 
@@ -218,11 +392,23 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{protocol.EVAL_EVERY})")
     parser.add_argument("--candidate-every", type=cli.positive_int, default=None,
                         help=f"candidate budgets are its multiples (default: {CANDIDATE_EVERY})")
-    parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=3,
-                        help="seeds per learner, at least 2 (default: %(default)s)")
-    parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.BUDGET_SEED_OFFSET,
-                        help="first seed (default: %(default)s; the tables use 0-9, the "
-                        "searches 100-102)")
+    parser.add_argument("--seeds", type=cli.int_in(2, 1024), default=None,
+                        help="seeds per learner, at least 2 (default: 3)")
+    parser.add_argument("--seed-offset", type=cli.seed_int, default=None,
+                        help=f"first seed (default: {protocol.BUDGET_SEED_OFFSET}; the tables "
+                        "use 0-9, the searches 100-102)")
+    parser.add_argument("--tables-seeds", action="store_true",
+                        help="the longer-budget check of docs/protocol.md (amendment of "
+                        "2026-11-26): the plain learners on the tables' seeds 0-9 (not with "
+                        f"--seeds or --seed-offset), --steps {LONGER_STEPS:,} unless given, "
+                        "checked at the candidates "
+                        + ", ".join(f"{c:,}" for c in LONGER_CANDIDATES)
+                        + " (not with --candidate-every)")
+    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
+                        help="train only these of the seeds, as a part of each program kept "
+                        "in <out>/parts/ and joined into its cell once parts cover all its "
+                        "seeds (for a machine that cannot train a whole program at one "
+                        "sitting)")
     parser.add_argument("--eval-episodes", type=cli.positive_int, default=None,
                         help="fresh episodes per evaluation and seed (default: "
                         f"{protocol.EVAL_EPISODES})")
@@ -234,10 +420,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def settings_from(args: argparse.Namespace) -> Settings:
-    seeds = tuple(range(args.seed_offset, args.seed_offset + args.seeds))
-    problem = protocol.seed_overlap(seeds, args.seed_offset, ("the tables'", "the selection"))
-    if problem:
-        raise cli.UsageError(problem)
+    if args.tables_seeds:
+        given = [name for name, value in (("--seeds", args.seeds),
+                                          ("--seed-offset", args.seed_offset),
+                                          ("--candidate-every", args.candidate_every))
+                 if value is not None]
+        if given:
+            raise cli.UsageError(f"--tables-seeds fixes the seeds (0-9) and the candidate "
+                                 f"budgets; leave out {' and '.join(given)}")
+        if args.quick:
+            raise cli.UsageError("--tables-seeds is the protocol's longer-budget check at full "
+                                 "size; --quick has seeds of its own (leave out one of them)")
+        seeds = protocol.TABLE_SEEDS
+    else:
+        offset = protocol.BUDGET_SEED_OFFSET if args.seed_offset is None else args.seed_offset
+        seeds = tuple(range(offset, offset + (3 if args.seeds is None else args.seeds)))
+        problem = protocol.seed_overlap(seeds, offset, ("the tables'", "the selection"))
+        if problem:
+            raise cli.UsageError(problem + " (the longer-budget check on the tables' seeds "
+                                 "is --tables-seeds)" if "tables'" in problem else problem)
     # --quick changes the defaults (tiny sizes); what is given on the command line stays.
     defaults = ({"steps": 10 * protocol.QUICK_STEPS, "eval_every": protocol.QUICK_EVAL_EVERY,
                  "eval_episodes": protocol.QUICK_EVAL_EPISODES,
@@ -247,17 +448,23 @@ def settings_from(args: argparse.Namespace) -> Settings:
     fields: dict[str, Any] = {
         name: default if getattr(args, name) is None else getattr(args, name)
         for name, default in defaults.items()}
+    if args.tables_seeds:
+        fields.update(candidate_budgets=LONGER_CANDIDATES,
+                      steps=LONGER_STEPS if args.steps is None else args.steps)
     fields.update(seeds=seeds, quick=args.quick, scenarios=tuple(dict.fromkeys(args.scenarios)),
-                  algos=tuple(dict.fromkeys(args.algos)))
+                  algos=tuple(dict.fromkeys(args.algos)),
+                  part_seeds=part_seeds_from(args.part_seeds, seeds, "budget check"))
     settings = Settings(**fields)
     for scenario in settings.scenarios:  # every configuration validated before compiling
         for algo in settings.algos:
             settings.config(scenario, algo)
     for algo in settings.algos:
         if not settings.candidates(algo):
-            raise cli.UsageError(
-                f"--candidate-every {settings.candidate_every:,} is above the budget "
-                f"{settings.budget(algo):,} of {algo}: no candidate budget would be checked")
+            what = ("the smallest of --tables-seeds' candidates "
+                    f"{min(settings.candidate_budgets):,}" if settings.candidate_budgets else
+                    f"--candidate-every {settings.candidate_every:,}")
+            raise cli.UsageError(f"{what} is above the budget {settings.budget(algo):,} of "
+                                 f"{algo}: no candidate budget would be checked")
     return settings
 
 
@@ -267,19 +474,25 @@ def main(argv: list[str] | None = None) -> int:
 
     def settings_of() -> Settings:
         check_quick_out(args.quick, args.out)
-        return settings_from(args)
+        settings = settings_from(args)
+        if settings.part_seeds and (overlap := overlapping_part(settings, out)):
+            raise cli.UsageError(overlap)
+        return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
                                        f"{len(settings.seeds)} seeds each")
     partial = Partial(out, args.checkpoint_minutes)
-    for (scenario, algo), cell in train_pairs(
-            todo, out, partial, ledger, progress,
-            lambda s, a: train_cell(settings, s, a, partial)):
-        cells[(scenario, algo)] = cell
-        found = checked(cell, settings)
-        log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
-            f"proposed budget {found['proposed_budget']}")
+    if settings.part_seeds:
+        train_parts(settings, out, todo, cells, partial, ledger)
+    else:
+        for (scenario, algo), cell in train_pairs(
+                todo, out, partial, ledger, progress,
+                lambda s, a: train_cell(settings, s, a, partial)):
+            cells[(scenario, algo)] = cell
+            found = checked(cell, settings)
+            log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
+                f"proposed budget {found['proposed_budget']}")
     ledger.record(len(todo), finished=True)
     # The summary reports every cell of the folder made with these settings, whichever
     # invocation made it (the budgets select nothing, so nothing depends on which are named).

@@ -99,8 +99,8 @@ def settings_record(settings: Any) -> dict[str, Any]:
 # Settings that choose which cells an invocation makes, or how they are summarised, but
 # not what a cell holds: a cell made by a narrower or wider invocation (or one checked
 # against other candidate budgets) is kept, not trained again.
-NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "part_seeds", "part_values",
-                "controller_episodes")
+NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "candidate_budgets", "part_seeds",
+                "part_values", "controller_episodes")
 
 
 # A program too long for one sitting can be made in parts (``--part-seeds``, and for a search
@@ -197,6 +197,56 @@ def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict
                           else {}),
                        **{k: part[k] for k in ("device", "commit", "date", *times)}}
                       for part in parts]}
+
+
+def seed_order(parts: list[dict[str, Any]], seeds: tuple[int, ...]) -> list[tuple[int, int]]:
+    """Where each of ``seeds`` is among ``parts`` (cells on disjoint seeds, each listing its
+    ``seeds``): (the part's index, the seed's position in it), in the order of ``seeds``."""
+    at = {seed: (index, position) for index, part in enumerate(parts)
+          for position, seed in enumerate(part["seeds"])}
+    return [at[seed] for seed in seeds]
+
+
+def joined_by_seed(records: list[list[Any]], order: list[tuple[int, int]]) -> list[Any]:
+    """One per-seed list per part (``records``, in the parts' order) joined into one, in
+    the order of :func:`seed_order`."""
+    return [records[index][position] for index, position in order]
+
+
+def train_part_programs(pairs: list[tuple[str, str]], out: Path, seeds: tuple[int, ...],
+                        values: tuple[float, ...], progress: Progress, partial: Partial,
+                        ledger: Ledger, train_part: Callable[[str, str, str], dict[str, Any]]
+                        ) -> None:
+    """Trains the part on ``seeds`` (and ``values``) of each (scenario, algo) in ``pairs``
+    with ``train_part(scenario, algo, name)``, ``name`` its file's stem, writes it into
+    ``<out>/parts/``, drops its checkpoint, records the invocation's progress and logs it."""
+    for index, (scenario, algo) in enumerate(pairs):
+        path = part_path(out, f"{scenario}-{algo}", seeds, values)
+        part = train_part(scenario, algo, path.stem)
+        path.parent.mkdir(exist_ok=True)
+        write_atomic(path, json.dumps(part) + "\n")
+        partial.discard(path.stem)
+        ledger.record(index + 1)
+        log(progress.finished(index, part["train_s"] + part["compile_s"]))
+
+
+def join_pair_parts(settings: Any, out: Path, pairs: list[tuple[str, str]],
+                    cells: dict[tuple[str, str], dict],
+                    join: Callable[[list[dict[str, Any]]], dict[str, Any] | None],
+                    lacking: Callable[[list[dict[str, Any]]], str]) -> None:
+    """Joins each (scenario, algo) of ``pairs`` whose parts in ``out`` ``join`` into its
+    cell (written, and put into ``cells``), deleting the parts; logs what the others have
+    (``lacking(parts)``)."""
+    for scenario, algo in pairs:
+        parts = made_parts(settings, out, f"{scenario}-{algo}")
+        cell = join(parts) if parts else None
+        if cell is None:
+            log(f"{scenario}-{algo}: {lacking(parts)}")
+            continue
+        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        discard_parts(out, f"{scenario}-{algo}", parts)
+        log(f"{scenario}-{algo}: joined from {len(parts)} parts into its cell")
+        cells[(scenario, algo)] = cell
 
 
 def discard_parts(out: Path, stem: str, parts: list[dict[str, Any]]) -> None:

@@ -62,8 +62,8 @@ from ledger import (
     cell_path,
     check_quick_out,
     device_name,
-    discard_parts,
     duration,
+    join_pair_parts,
     log,
     made_parts,
     open_experiment,
@@ -80,6 +80,7 @@ from ledger import (
     refuse_untrained,
     settings_record,
     train_pairs,
+    train_part_programs,
     training_record,
 )
 
@@ -455,29 +456,19 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
     progress = Progress([(part_path(out, f"{s}-{a}", seeds, values).stem, a,
                           runs * settings.budget(a)) for s, a in train])
     trained = dataclasses.replace(part_settings(settings, seeds), part_values=())
-    for index, (scenario, algo) in enumerate(train):
-        path = part_path(out, f"{scenario}-{algo}", seeds, values)
-        part = train_cell(trained, scenario, algo, partial, path.stem, values)
-        path.parent.mkdir(exist_ok=True)
-        write_atomic(path, json.dumps(part) + "\n")
-        partial.discard(path.stem)
-        ledger.record(index + 1)
-        log(progress.finished(index, part["train_s"] + part["compile_s"]))
-    for scenario, algo in todo:
-        parts = made_parts(settings, out, f"{scenario}-{algo}")
-        cell = join_parts(settings, parts) if parts else None
-        if cell is None:
-            made = "; ".join(
-                f"seeds {part['settings']['seeds']}"
-                + (f" values {list(part_values_of(part))}" if part_values_of(part) else "")
-                for part in parts)
-            log(f"{scenario}-{algo}: parts made ({made}) of seeds {list(settings.seeds)} "
-                f"x values {settings.grid_values}")
-            continue
-        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-        discard_parts(out, f"{scenario}-{algo}", parts)
-        log(f"{scenario}-{algo}: joined from {len(parts)} parts into its cell")
-        cells[(scenario, algo)] = cell
+    train_part_programs(train, out, seeds, values, progress, partial, ledger,
+                        lambda s, a, name: train_cell(trained, s, a, partial, name, values))
+
+    def lacking(parts: list[dict[str, Any]]) -> str:
+        made = "; ".join(
+            f"seeds {part['settings']['seeds']}"
+            + (f" values {list(part_values_of(part))}" if part_values_of(part) else "")
+            for part in parts)
+        return (f"parts made ({made}) of seeds {list(settings.seeds)} x values "
+                f"{settings.grid_values}")
+
+    join_pair_parts(settings, out, todo, cells, lambda parts: join_parts(settings, parts),
+                    lacking)
 
 
 def main(argv: list[str] | None = None) -> int:

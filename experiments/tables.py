@@ -93,6 +93,7 @@ from ledger import (
     device_name,
     discard_parts,
     duration,
+    joined_by_seed,
     log,
     made_parts,
     open_experiment,
@@ -104,6 +105,7 @@ from ledger import (
     parts_made_text,
     read_json,
     refuse_untrained,
+    seed_order,
     settings_record,
     training_record,
 )
@@ -310,12 +312,10 @@ def join_cell_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str
     seeds were made where, when and at which commit."""
     if not parts_cover(settings, parts):
         return None
-    at = {seed: (index, position) for index, part in enumerate(parts)
-          for position, seed in enumerate(part["seeds"])}
-    order = [at[seed] for seed in settings.seeds]
+    order = seed_order(parts, settings.seeds)
 
     def joined(records: list[list[Any]]) -> list[Any]:
-        return [records[index][position] for index, position in order]
+        return joined_by_seed(records, order)
 
     first = parts[0]
     history = {m: joined([part["history"][m] for part in parts]) for m in first["history"]}

@@ -90,6 +90,15 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     (["--steps", "250001"], ("--steps 250,001 runs as 300,000", "whole evaluation")),
     (["--candidate-every", "0"], ("--candidate-every",)),
     (["--candidate-every", "4000000"], ("above the budget 3,000,000 of iddpg",)),
+    (["--seed-offset", "0"], ("is --tables-seeds",)),
+    (["--part-seeds", "5"], ("--part-seeds 5 not among the budget check's seeds 200-202",)),
+    (["--tables-seeds", "--seeds", "4"], ("--tables-seeds fixes the seeds", "--seeds")),
+    (["--tables-seeds", "--seed-offset", "0", "--candidate-every", "1000"],
+     ("leave out --seed-offset and --candidate-every",)),
+    (["--tables-seeds", "--quick"], ("--quick has seeds of its own",)),
+    (["--tables-seeds", "--steps", "2000000"],
+     ("candidates 3,000,000 is above the budget 2,000,000",)),
+    (["--tables-seeds", "--part-seeds", "10"], ("--part-seeds 10 not among", "seeds 0-9")),
 ])
 def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -111,6 +120,58 @@ def test_the_proposed_budget_is_where_the_return_stays_level(budgets):
     relapse = rising_then_flat + np.where(steps > 1600, (steps - 1600) / 100, 0.0)
     assert budgets.check_budgets(steps, relapse, candidates)[1] is None
     assert budgets.check_budgets(steps, steps / 100 + noise, candidates)[1] is None
+
+
+def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budgets):
+    """The longer-budget check's rule (docs/protocol.md, amendment of 2026-11-26) on made-up
+    checks: the smallest candidate at which every cell passes, even where a cell passed at
+    a smaller one; the largest, flagged with the cells that fail there, where none does."""
+    def cell(name: str, passes: dict[int, bool | None]) -> dict:
+        return {"scenario": name, "algo": "iddpg",
+                "checks": [{"budget": b, "plateaued": p} for b, p in passes.items()]}
+
+    cells = [cell("a", {3: True, 4: False, 6: True}), cell("b", {3: False, 4: True, 6: True}),
+             cell("c", {3: True, 4: True, 6: True})]
+    rule = budgets.one_budget_for_all(cells)
+    assert (rule["budget"], rule["passed"]) == (6, True)
+    assert rule["failing"] == {3: ["b-iddpg"], 4: ["a-iddpg"], 6: []}
+    cells[0]["checks"][1]["plateaued"] = True
+    assert budgets.one_budget_for_all(cells)["budget"] == 4
+    cells[2]["checks"][2]["plateaued"] = None  # undetermined counts as not passing
+    cells[1]["checks"][1]["plateaued"] = False
+    rule = budgets.one_budget_for_all(cells)
+    assert (rule["budget"], rule["passed"]) == (6, False)
+    assert rule["failing"][6] == ["c-iddpg"]
+    # The summary says it once every scenario and learner of the paper has its cell.
+    nine = [{"scenario": s, "algo": a, "checks": [
+        {"budget": b, "plateaued": b >= (4_500_000 if (s, a) == ("turbulence", "maac") else
+                                         3_000_000), "last": 1.0, "previous": 0.5}
+        for b in (3_000_000, 4_500_000, 6_000_000)]}
+        for a in budgets.ALGOS for s in budgets.SCENARIOS]
+    named = {"candidate_budgets": [3_000_000, 4_500_000, 6_000_000]}
+    assert budgets.rule_lines({"cells": nine, "settings": {"candidate_budgets": []}}) == []
+    text = "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
+    assert "| maac | turbulence | **no** (+0.50) | yes (+0.50) | yes (+0.50) |" in text
+    assert "every plain learner's check passes): **4,500,000** steps." in text
+    fewer = {"cells": nine[1:], "settings": named}
+    assert "not yet, 8 of the 9" in "\n".join(budgets.rule_lines(fewer))
+    for cell in nine:  # IDDPG fails everywhere: the largest candidate, flagged
+        for check in cell["checks"]:
+            check["plateaued"] = check["plateaued"] and cell["algo"] != "iddpg"
+    assert ("no candidate passes for every plain learner, so **6,000,000** steps, flagged: at "
+            "it the check fails for hidden_obstacle-iddpg, turbulence-iddpg, strong_wind-iddpg"
+            ) in "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
+
+
+def test_the_tables_seeds_check_runs_the_protocols_longer_budget(budgets):
+    """--tables-seeds: the tables' seeds, 6M steps, the candidates 3M, 4.5M and 6M, as the
+    amendment of 2026-11-26 says; and parts of it named by seed."""
+    args = budgets.build_parser().parse_args(["--tables-seeds", "--part-seeds", "3", "1"])
+    settings = budgets.settings_from(args)
+    assert settings.seeds == tuple(range(10)) and settings.part_seeds == (1, 3)
+    assert settings.budget("maac") == 6_000_000
+    assert settings.candidates("iddpg") == [3_000_000, 4_500_000, 6_000_000]
+    assert budgets.settings_from(budgets.build_parser().parse_args([])).seeds == (200, 201, 202)
 
 
 def test_committed_results_need_force(search, tables, budgets, tmp_path, capsys, monkeypatch):

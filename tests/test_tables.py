@@ -256,6 +256,26 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert_cells_record_their_training(out)
     for name in ("budgets.md", "curves_iddpg.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
+    # The same cell made in two parts by seed joins into the one program's runs.
+    parted = [*argv[:-1], str(tmp_path / "parted")]
+    assert budgets.main([*parted, "--part-seeds", "201"]) == 0
+    assert [p.name for p in (tmp_path / "parted" / "parts").iterdir()] == [
+        "turbulence-iddpg-seeds-201.json"]
+    assert "turbulence-iddpg: parts made on seeds [201] of [200, 201, 202]" in (
+        capsys.readouterr().err)
+    with pytest.raises(SystemExit) as refusal:
+        budgets.main([*parted, "--part-seeds", "200", "201"])
+    assert refusal.value.code == 2
+    assert "already has seed 201 in parts/turbulence-iddpg-seeds-201.json" in (
+        capsys.readouterr().err)
+    assert budgets.main([*parted, "--part-seeds", "200", "202"]) == 0
+    assert "joined from 2 parts into its cell" in capsys.readouterr().err
+    assert not (tmp_path / "parted" / "parts").exists()
+    joined = json.loads((tmp_path / "parted" / "cells" / "turbulence-iddpg.json").read_text())
+    assert joined["seeds"] == cell["seeds"] and joined["env_steps"] == cell["env_steps"]
+    assert [p["seeds"] for p in joined["parts"]] == [[200, 202], [201]]
+    for metric, curves in cell["curves"].items():
+        np.testing.assert_allclose(joined["curves"][metric], curves, rtol=1e-5, atol=1e-6)
     capsys.readouterr()
     assert budgets.main(argv) == 0
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
