@@ -354,14 +354,15 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     skipped = [line for cell in result["cells"]
                for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
     runs = sum(len(cell["seeds"]) for cell in result["cells"])
-    lines += [*rule_lines(result), "", nonfinite_text(skipped, f"the {runs} runs")]
+    lines += [*rule_lines(result), "", nonfinite_text(skipped, f"the {runs} runs") if runs else
+              f"No cell is made yet (parts wait in {PARTS}/ until they cover the seeds)."]
     return "\n".join(lines) + "\n"
 
 
-def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path, quick: bool = False
-                       ) -> list[Path]:
+def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path, quick: bool = False,
+                       seeds: str = "budget seeds") -> list[Path]:
     """``curves_<algo>.png``: return, success and danger along training per scenario
-    (``quick``: the titles say the quick mode)."""
+    (``quick``: the titles say the quick mode; ``seeds``: which seeds they show)."""
     paths = []
     for algo in dict.fromkeys(a for _, a in cells):
         curves = Curves()
@@ -371,8 +372,8 @@ def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path, quick: boo
                            {m: np.asarray(cell["curves"][m]) for m in FINAL_METRICS})
         path = out / f"curves_{algo}.png"
         draw_curves(curves, path, metrics=FINAL_METRICS,
-                    title=f"{protocol.QUICK_FIGURE if quick else ''}plain {algo}, budget "
-                    "seeds: is the return still moving?")
+                    title=f"{protocol.QUICK_FIGURE if quick else ''}plain {algo}, {seeds}: "
+                    "is the return still moving?")
         paths.append(path)
     return paths
 
@@ -505,13 +506,16 @@ def main(argv: list[str] | None = None) -> int:
                for a in ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
     result = {
         "settings": record,
-        "budgets": {a: settings.budget(a) for a in dict.fromkeys(a for _, a in ordered)},
+        "budgets": {a: settings.budget(a)
+                    for a in dict.fromkeys(a for _, a in ordered) or settings.algos},
         "invocations": ledger.invocations,
         "cells": list(ordered.values()),
     }
     write_atomic(out / "budgets.json", json.dumps(result) + "\n")
     write_atomic(out / "budgets.md", budgets_markdown(result))
-    figures = draw_budget_curves(ordered, out, bool(record.get("quick")))
+    figures = draw_budget_curves(ordered, out, bool(record.get("quick")),
+                                 "the tables' seeds" if settings.seeds == protocol.TABLE_SEEDS
+                                 else "budget seeds")
     print(budgets_markdown(result))
     print(f"wrote {out / 'budgets.md'}, budgets.json, "
           + ", ".join(path.name for path in figures))

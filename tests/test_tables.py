@@ -263,6 +263,8 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
         "turbulence-iddpg-seeds-201.json"]
     assert "turbulence-iddpg: parts made on seeds [201] of [200, 201, 202]" in (
         capsys.readouterr().err)
+    waiting = (tmp_path / "parted" / "budgets.md").read_text()
+    assert "No cell is made yet" in waiting and "steps per seed: 4,000 (iddpg)" in waiting
     with pytest.raises(SystemExit) as refusal:
         budgets.main([*parted, "--part-seeds", "200", "201"])
     assert refusal.value.code == 2
