@@ -61,8 +61,8 @@ from ledger import (
     join_pair_parts,
     joined_by_seed,
     log,
-    made_parts,
     open_experiment,
+    overlapping_part,
     part_made,
     part_path,
     part_seeds_from,
@@ -189,10 +189,7 @@ def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any
     if not parts_cover(settings, parts):
         return None
     order = seed_order(parts, settings.seeds)
-    first = parts[0]
-    if any(part["env_steps"] != first["env_steps"] for part in parts):
-        raise ValueError(f"the parts of {first['scenario']}-{first['algo']} were evaluated "
-                         "at different steps; they cannot be one program's runs")
+    first = parts[0]  # parts made with the same settings: the same evaluation steps
     times = ("train_s", "compile_s")
     return {
         **{k: first[k] for k in ("scenario", "algo", "budget", "training")},
@@ -224,21 +221,6 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
                     lambda parts: "parts made on seeds "
                     f"{sorted(seed for part in parts for seed in part['seeds'])} of "
                     f"{list(settings.seeds)}")
-
-
-def overlapping_part(settings: Settings, out: Path) -> str | None:
-    """Why the part on ``settings.part_seeds`` cannot be joined with the parts in ``out``
-    (another part holds some of its seeds), or ``None``; a part that exists is skipped."""
-    seeds = settings.part_seeds
-    for scenario in settings.scenarios:
-        for algo in settings.algos:
-            for part in made_parts(settings, out, f"{scenario}-{algo}"):
-                held = sorted(set(seeds) & set(part["seeds"]))
-                if held and tuple(part["seeds"]) != seeds:
-                    name = part_path(out, f"{scenario}-{algo}", tuple(part["seeds"])).name
-                    return (f"--part-seeds: {scenario}-{algo} already has seed {held[0]} in "
-                            f"{PARTS}/{name}; ask for seeds that no part holds")
-    return None
 
 
 def checked(cell: dict[str, Any], settings: Settings) -> dict[str, Any]:
@@ -438,8 +420,9 @@ def settings_from(args: argparse.Namespace) -> Settings:
         seeds = tuple(range(offset, offset + (3 if args.seeds is None else args.seeds)))
         problem = protocol.seed_overlap(seeds, offset, ("the tables'", "the selection"))
         if problem:
-            raise cli.UsageError(problem + " (the longer-budget check on the tables' seeds "
-                                 "is --tables-seeds)" if "tables'" in problem else problem)
+            hint = (" (the longer-budget check on the tables' seeds is --tables-seeds)"
+                    if "tables'" in problem else "")
+            raise cli.UsageError(problem + hint)
     # --quick changes the defaults (tiny sizes); what is given on the command line stays.
     defaults = ({"steps": 10 * protocol.QUICK_STEPS, "eval_every": protocol.QUICK_EVAL_EVERY,
                  "eval_episodes": protocol.QUICK_EVAL_EPISODES,

@@ -213,6 +213,33 @@ def joined_by_seed(records: list[list[Any]], order: list[tuple[int, int]]) -> li
     return [records[index][position] for index, position in order]
 
 
+def overlapping_part(settings: Any, out: Path, grid_values: tuple[Any, ...] = (None,),
+                     values: tuple[float, ...] = ()) -> str | None:
+    """Why the part on ``settings.part_seeds`` (and, for a search, its ``values`` of
+    ``grid_values``) cannot be joined with the parts in ``out`` (some of its runs are already
+    in another part, so no join would hold each run once), or ``None``; asking again for a
+    part that exists is no overlap (it is skipped)."""
+    seeds = settings.part_seeds or settings.seeds
+    asked = {(value, seed) for value in values or grid_values for seed in seeds}
+    for scenario in settings.scenarios:
+        for algo in settings.algos:
+            for part in made_parts(settings, out, f"{scenario}-{algo}"):
+                same = (tuple(part["settings"]["seeds"]) == seeds
+                        and part_values_of(part) == values)
+                held = asked & set(part_runs(part, grid_values))
+                if held and not same:
+                    value, seed = min(held)
+                    name = part_path(out, f"{scenario}-{algo}", tuple(part["settings"]["seeds"]),
+                                     part_values_of(part)).name
+                    if value is None:  # no searched values: the seeds alone overlap
+                        return (f"--part-seeds: {scenario}-{algo} already has seed {seed} in "
+                                f"{PARTS}/{name}; ask for seeds that no part holds")
+                    return (f"--part-seeds/--part-values: {scenario}-{algo} already has value "
+                            f"{value:g} on seed {seed} in {PARTS}/{name}; ask for runs that no "
+                            "part holds")
+    return None
+
+
 def train_part_programs(pairs: list[tuple[str, str]], out: Path, seeds: tuple[int, ...],
                         values: tuple[float, ...], progress: Progress, partial: Partial,
                         ledger: Ledger, train_part: Callable[[str, str, str], dict[str, Any]]

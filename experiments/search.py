@@ -65,11 +65,10 @@ from ledger import (
     duration,
     join_pair_parts,
     log,
-    made_parts,
     open_experiment,
+    overlapping_part,
     part_made,
     part_path,
-    part_runs,
     part_seeds_from,
     part_settings,
     part_values_of,
@@ -420,28 +419,6 @@ def part_values_from(requested: list[float] | None, grid_values: tuple[float, ..
     return () if part == tuple(sorted(grid_values)) else part
 
 
-def overlapping_part(settings: Settings, out: Path) -> str | None:
-    """Why the part ``settings`` asks for cannot be joined with the parts in ``out`` (some
-    of its runs are already in another part, so no join would hold each run once), or
-    ``None``; asking again for a part that exists is no overlap (it is skipped)."""
-    seeds, values = settings.part_seeds or settings.seeds, settings.part_values
-    asked = {(value, seed) for value in values or settings.grid_values for seed in seeds}
-    for scenario in settings.scenarios:
-        for algo in settings.algos:
-            for part in made_parts(settings, out, f"{scenario}-{algo}"):
-                same = (tuple(part["settings"]["seeds"]) == seeds
-                        and part_values_of(part) == values)
-                held = asked & set(part_runs(part, tuple(settings.grid_values)))
-                if held and not same:
-                    value, seed = min(held)
-                    name = part_path(out, f"{scenario}-{algo}", tuple(part["settings"]["seeds"]),
-                                     part_values_of(part)).name
-                    return (f"--part-seeds/--part-values: {scenario}-{algo} already has value "
-                            f"{value:g} on seed {seed} in {PARTS}/{name}; ask for runs that no "
-                            "part holds")
-    return None
-
-
 def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
                 cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
     """Trains the part on ``settings.part_seeds`` (all seeds if none) and
@@ -485,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
             refuse_untrained({f"{s}-{a}": cell_path(out, s, a) for s in settings.scenarios
                               for a in settings.algos}, settings_record(settings), out,
                              "--part-seeds, --part-values" if settings.in_parts else "")
-        elif settings.in_parts and (overlap := overlapping_part(settings, out)):
+        elif settings.in_parts and (overlap := overlapping_part(
+                settings, out, tuple(settings.grid_values), settings.part_values)):
             raise cli.UsageError(overlap)
         return settings
 
