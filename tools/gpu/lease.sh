@@ -42,10 +42,11 @@ install_wheels() {  # folder, then the modules it provides
 }
 
 setup() {
-  install_wheels .whl rliable arch pandas
-  [[ "${1:-}" == "--tests" ]] && install_wheels .whltest brax mpe2 flashbax pygame
+  install_wheels .whl rliable arch pandas brax
+  [[ "${1:-}" == "--tests" ]] && install_wheels .whltest mpe2 flashbax pygame
   "$PY" - <<'EOF'
 import jax, flax, optax, orbax.checkpoint, pandas, rliable, sys
+import ccrjax.envs.env  # brax, which the environment is built on
 print("python", sys.version.split()[0], "| jax", jax.__version__, "| flax", flax.__version__,
       "| optax", optax.__version__, "| pandas", pandas.__version__)
 print("devices:", jax.devices())
@@ -72,7 +73,7 @@ start() {  # plan
   [[ -n "${CCRJAX_COMMIT:-}" ]] || die "set CCRJAX_COMMIT to the commit of this tree \
 (git rev-parse HEAD, here): the device's copy has no .git and every cell records its commit"
   [[ -z "$(running_lanes)" ]] || die "lanes still running: $(running_lanes | tr '\n' ' ')"
-  install_wheels .whl rliable arch pandas
+  install_wheels .whl rliable arch pandas brax
   local line name command
   while IFS= read -r line || [[ -n "$line" ]]; do
     line="${line%%#*}"
@@ -92,12 +93,15 @@ start() {  # plan
 }
 
 report() {
-  local log name state
+  local log name state running
+  # The running lanes, listed once: `running_lanes | grep -q` under pipefail reads a lane
+  # that is running as "killed" when grep's early exit breaks the pipe of a longer list.
+  running="$(running_lanes)"
   for log in "$ROOT"/lanes/*.log; do
     [[ -e "$log" ]] || continue
     name="$(basename "$log" .log)"
     if [[ -e "$ROOT/lanes/$name.rc" ]]; then state="exit $(cat "$ROOT/lanes/$name.rc")"
-    elif running_lanes | grep -qx "$name"; then state="running"
+    elif grep -qx "$name" <<< "$running"; then state="running"
     else state="killed"; fi
     printf '%-12s %-9s %s\n' "$name" "$state" "$(tr '\r' '\n' < "$log" | grep -v '^\s*$' | tail -1 | cut -c1-160)"
   done
@@ -121,8 +125,8 @@ wait_lanes() {  # seconds
 
 bench() {
   # `make bench`, alone on the GPU (run it before `start`: lanes beside it would slow it).
-  install_wheels .whl rliable arch pandas
-  install_wheels .whltest brax mpe2 flashbax pygame
+  install_wheels .whl rliable arch pandas brax
+  install_wheels .whltest mpe2 flashbax pygame
   mkdir -p "$ROOT/checks"
   local bench name
   for bench in "env_throughput.py" "train_throughput.py --variants plain ccr" \
@@ -140,8 +144,8 @@ tests() {
   # What `make test` and `make train` run, with the image's python3 (the Makefile's targets
   # use a .venv that a machine without a package index cannot make). Their times are with
   # the lanes sharing the GPU, if any run.
-  install_wheels .whl rliable arch pandas
-  install_wheels .whltest brax mpe2 flashbax pygame
+  install_wheels .whl rliable arch pandas brax
+  install_wheels .whltest mpe2 flashbax pygame
   mkdir -p "$ROOT/checks"
   local t0
   t0=$SECONDS
