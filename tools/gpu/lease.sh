@@ -41,9 +41,14 @@ install_wheels() {  # folder, then the modules it provides
   touch "$stamp"
 }
 
+# The two carried sets (tools/gpu/wheels.sh): what the experiments import, and what the
+# tests and benchmarks import besides.
+install_experiment_wheels() { install_wheels .whl rliable arch pandas brax; }
+install_test_wheels() { install_wheels .whltest mpe2 flashbax pygame; }
+
 setup() {
-  install_wheels .whl rliable arch pandas brax
-  [[ "${1:-}" == "--tests" ]] && install_wheels .whltest mpe2 flashbax pygame
+  install_experiment_wheels
+  [[ "${1:-}" == "--tests" ]] && install_test_wheels
   "$PY" - <<'EOF'
 import jax, flax, optax, orbax.checkpoint, pandas, rliable, sys
 import ccrjax.envs.env  # brax, which the environment is built on
@@ -73,7 +78,7 @@ start() {  # plan
   [[ -n "${CCRJAX_COMMIT:-}" ]] || die "set CCRJAX_COMMIT to the commit of this tree \
 (git rev-parse HEAD, here): the device's copy has no .git and every cell records its commit"
   [[ -z "$(running_lanes)" ]] || die "lanes still running: $(running_lanes | tr '\n' ' ')"
-  install_wheels .whl rliable arch pandas brax
+  install_experiment_wheels
   local line name command
   while IFS= read -r line || [[ -n "$line" ]]; do
     line="${line%%#*}"
@@ -125,8 +130,8 @@ wait_lanes() {  # seconds
 
 bench() {
   # `make bench`, alone on the GPU (run it before `start`: lanes beside it would slow it).
-  install_wheels .whl rliable arch pandas brax
-  install_wheels .whltest mpe2 flashbax pygame
+  install_experiment_wheels
+  install_test_wheels
   mkdir -p "$ROOT/checks"
   local bench name
   for bench in "env_throughput.py" "train_throughput.py --variants plain ccr" \
@@ -144,8 +149,8 @@ tests() {
   # What `make test` and `make train` run, with the image's python3 (the Makefile's targets
   # use a .venv that a machine without a package index cannot make). Their times are with
   # the lanes sharing the GPU, if any run.
-  install_wheels .whl rliable arch pandas brax
-  install_wheels .whltest mpe2 flashbax pygame
+  install_experiment_wheels
+  install_test_wheels
   mkdir -p "$ROOT/checks"
   local t0
   t0=$SECONDS

@@ -2,8 +2,8 @@
 # Fills .whl/ with the Python 3.12 x86-64 wheels that the lent GPU machine's image lacks and
 # the experiments need (rliable and arch for the statistics; pandas < 3, which arch 7 needs;
 # brax and MuJoCo, since ccrjax's environment is a brax Env), and, with --tests, .whltest/
-# with those that only the test suite and the benchmarks need (mpe2 and PettingZoo, flashbax). Run it here, where pip reaches a package
-# index; the GPU machine reaches none. Both folders are git-ignored and travel with a call's
+# with those that only the test suite and the benchmarks need (mpe2 and PettingZoo,
+# flashbax). Run it here, where pip reaches a package index; the GPU machine reaches none. Both folders are git-ignored and travel with a call's
 # `carry` (64 MiB in all, the working tree included).
 #
 # The image's own packages (jax with CUDA, flax, optax, chex, orbax-checkpoint, numpy, scipy,
@@ -20,8 +20,8 @@ PLATFORM=(--only-binary=:all: --python-version 3.12 --implementation cp
 rm -rf .whl && mkdir -p .whl
 # rliable publishes no wheel: build its pure-Python one here.
 $PIP wheel -q --no-deps -w .whl "rliable==1.2.0"
-# brax's needs that the image lacks; its rendering extras are left out (mujoco's viewer and
-# OpenGL are never imported).
+# arch's needs, then brax's that the image lacks; brax's rendering extras are left out
+# (mujoco's viewer and OpenGL are never imported).
 $PIP download -q --no-deps "${PLATFORM[@]}" -d .whl \
   "arch>=5.3.1,<8" "pandas>=2,<3" pytz tzdata \
   "brax==0.14.2" "mujoco==4.0.0" "mujoco-core==4.0.0" "mujoco-mjx==3.17.0" jaxopt \
