@@ -243,11 +243,12 @@ def not_the_protocols(settings: Settings) -> str | None:
     over the protocol's values, budgets and evaluations. Such a selection is provisional:
     the tables refuse it."""
     _, values = protocol.SEARCHED[settings.variant]
-    missing = [f"{s}-{a}" for s in SCENARIOS for a in ALGOS
-               if s not in settings.scenarios or a not in settings.algos]
+    left_out = [f"{s}-{a}" for s in SCENARIOS for a in ALGOS
+                if s not in settings.scenarios or a not in settings.algos]
     reasons = [
         *(["the quick mode"] if settings.quick else []),
-        *([f"{len(missing)} of 9 pairs missing ({', '.join(missing)})"] if missing else []),
+        *([f"{len(left_out)} of 9 pairs not summarised ({', '.join(left_out)})"]
+          if left_out else []),
         *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),

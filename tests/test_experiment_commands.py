@@ -371,7 +371,7 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     full = search.Settings(variant="ccr", values=(0.3, 1.0, 3.0, 10.0, 30.0, 100.0))
     assert search.not_the_protocols(full) is None
     narrow = dataclasses.replace(full, algos=("iddpg", "maddpg"))
-    assert "3 of 9 pairs missing" in search.not_the_protocols(narrow)
+    assert "3 of 9 pairs not summarised" in search.not_the_protocols(narrow)
     quick = dataclasses.replace(full, quick=True, seeds=(100, 101))
     assert "the quick mode" in search.not_the_protocols(quick)
     assert "seeds" in search.not_the_protocols(quick)
@@ -380,11 +380,11 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
         (searches / variant).mkdir(parents=True)
         (searches / variant / "search.json").write_text(json.dumps({"selection": {
             "value": 3.0, "protocol": protocol_choice,
-            "provisional_because": "3 of 9 pairs missing"},
+            "provisional_because": "3 of 9 pairs not summarised"},
             "budgets": {algo: tables.protocol.budget(algo, None) for algo in tables.ALGOS}}))
     monkeypatch.setattr(tables, "SEARCHES", searches)
     refused(tables, ["--out", str(tmp_path / "never")], capsys, "not the protocol's choice",
-            "3 of 9 pairs missing", "--lam")
+            "3 of 9 pairs not summarised", "--lam")
     # A researcher's own searches (make sweep, make penalty-sweep) feed the tables through
     # --searches; the committed ones are the default.
     monkeypatch.undo()
