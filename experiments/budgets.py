@@ -58,6 +58,7 @@ from ledger import (
     check_quick_out,
     device_name,
     duration,
+    invocation_line,
     join_pair_parts,
     joined_by_seed,
     log,
@@ -313,10 +314,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
         "on every candidate plateaus (none: still moving at the end). Final values: mean "
         "and 95% interval over seeds at the last evaluation. Made by:",
         "",
-        *(f"* `{run['command']}` at `{run['commit']}` on {run['device']}, {run['date']}: "
-          f"{run['programs_trained']} program(s), {duration(run['wall_time_s'])}"
-          + ("" if run["finished"] else " (stopped before the end)")
-          for run in result["invocations"]),
+        *(invocation_line(run) for run in result["invocations"]),
         "",
         "| learner | scenario | plateaued at the end | proposed budget | return | success | "
         "danger | program |",

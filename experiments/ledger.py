@@ -636,6 +636,25 @@ def duration(seconds: float) -> str:
     return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{seconds:02d}s"
 
 
+def invocation_line(run: dict[str, Any], programs: int | None = None) -> str:
+    """One Markdown bullet for an invocation record: its command, commit, device, jax, date,
+    the programs it trained (``of programs`` where the whole count is fixed) and its time.
+
+    A record's time is rewritten as each program finishes, so an invocation stopped before
+    its end (killed, or the machine lent back) is shown with the programs it finished and
+    the time up to the last of them; one stopped before its first has no time to show."""
+    of = "" if programs is None else f" of {programs}"
+    head = (f"* `{run['command']}` at `{run['commit']}` on {run.get('device', '?')} "
+            f"(jax {run.get('jax', '?')}), {run['date']}: ")
+    trained = run["programs_trained"]
+    if run.get("finished", True):
+        return head + f"trained {trained}{of} program(s) in {duration(run['wall_time_s'])}"
+    if trained:
+        return head + (f"stopped before the end, after it trained {trained}{of} program(s) "
+                       f"in {duration(run['wall_time_s'])}")
+    return head + "stopped before the end, before its first program finished"
+
+
 class Progress:
     """Progress across programs of unequal cost, with an estimate of the time left.
 

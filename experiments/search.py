@@ -63,6 +63,7 @@ from ledger import (
     check_quick_out,
     device_name,
     duration,
+    invocation_line,
     join_pair_parts,
     log,
     open_experiment,
@@ -312,10 +313,7 @@ def search_markdown(result: dict) -> str:
         f"{settings['eval_episodes']} episodes per seed; mean and 95% CI over seeds (Student "
         "t, clipped to each metric's range). Made by:",
         "",
-        *(f"* `{run['command']}` at `{run['commit']}` on {run['device']}, {run['date']}: "
-          f"{run['programs_trained']} program(s), {duration(run['wall_time_s'])}"
-          + ("" if run["finished"] else " (stopped before the end)")
-          for run in result["invocations"]),
+        *(invocation_line(run) for run in result["invocations"]),
         "",
         f"**Rule** (fixed before the search): {chosen['rule']}.",
         "",

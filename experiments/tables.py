@@ -93,6 +93,7 @@ from ledger import (
     device_name,
     discard_parts,
     duration,
+    invocation_line,
     joined_by_seed,
     log,
     made_parts,
@@ -675,11 +676,7 @@ def tables_markdown(result: dict) -> str:
         f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
         f"training time add up to {duration(result['programs_seconds'])}. Invocations:",
         "",
-        *(f"* `{run['command']}` at `{run['commit']}` on {run.get('device', '?')} "
-          f"(jax {run.get('jax', '?')}), {run['date']}: trained {run['programs_trained']} "
-          f"of 18 programs, wall time {duration(run['wall_time_s'])}"
-          + ("" if run.get("finished", True) else " (stopped before the end)")
-          for run in result["invocations"]),
+        *(invocation_line(run, 18) for run in result["invocations"]),
         "",
         f"{len(seeds)} seeds per cell (seeds {seeds[0]} to {seeds[-1]}); environment steps per "
         f"run {result['budgets']}; CCR at lambda {settings['lam']:g} "

@@ -837,3 +837,20 @@ def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(searc
     record = ledger.settings_record(search.settings_from(
         search.build_parser().parse_args(common)))
     assert ledger.cell_is_current(joined, record)
+
+
+def test_a_stopped_invocation_shows_only_the_time_it_recorded(search):
+    """A record's time is rewritten as each program finishes: a stopped invocation is shown
+    with the programs it finished and the time to the last; before the first, with none."""
+    import ledger
+    run = {"command": "python experiments/search.py", "commit": "abc", "device": "cpu",
+           "jax": "0.4", "date": "2026-11-28 03:00 UTC", "wall_time_s": 0.05}
+    finished = ledger.invocation_line({**run, "finished": True, "programs_trained": 2,
+                                       "wall_time_s": 4861.0}, 18)
+    assert finished.endswith("trained 2 of 18 program(s) in 1h21m")
+    part = ledger.invocation_line({**run, "finished": False, "programs_trained": 1,
+                                   "wall_time_s": 75.0})
+    assert part.endswith("stopped before the end, after it trained 1 program(s) in 1m15s")
+    none = ledger.invocation_line({**run, "finished": False, "programs_trained": 0})
+    assert none.endswith("stopped before the end, before its first program finished")
+    assert "0m00s" not in none
