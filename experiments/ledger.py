@@ -185,13 +185,18 @@ def parts_cover(settings: Any, parts: list[dict[str, Any]], values: tuple[Any, .
 
 
 def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict[str, Any]:
-    """A joined cell's provenance: the parts' devices, commits (each once, in order) and
-    last date, and per part its seeds (and values, where only some), device, commit, date
-    and ``times``."""
-    def made(key: str) -> str:
-        return "; ".join(dict.fromkeys(str(part[key]) for part in parts))
+    """A joined cell's provenance: the parts' devices and commits (each once, in the order
+    the parts were made) and the date of the last part made, whatever the order of its
+    seeds, and per part (in the cell's order) its seeds (and values, where only some),
+    device, commit, date and ``times``. Dates are ``YYYY-MM-DD HH:MM UTC``, so their text
+    orders them."""
+    made_in_order = sorted(parts, key=lambda part: part["date"])
 
-    return {"device": made("device"), "commit": made("commit"), "date": parts[-1]["date"],
+    def made(key: str) -> str:
+        return "; ".join(dict.fromkeys(str(part[key]) for part in made_in_order))
+
+    return {"device": made("device"), "commit": made("commit"),
+            "date": made_in_order[-1]["date"],
             "parts": [{"seeds": part["settings"]["seeds"],
                        **({"values": list(part_values_of(part))} if part_values_of(part)
                           else {}),

@@ -854,3 +854,19 @@ def test_a_stopped_invocation_shows_only_the_time_it_recorded(search):
     none = ledger.invocation_line({**run, "finished": False, "programs_trained": 0})
     assert none.endswith("stopped before the end, before its first program finished")
     assert "0m00s" not in none
+
+
+def test_a_joined_cell_is_dated_by_the_last_part_made_not_the_last_seed(search):
+    """Parts join in seed order, but a cell's date and commits follow the order the parts
+    were made in: a cell finished by a part on its first seeds is dated by that part."""
+    import ledger
+
+    def part(seeds: list[int], commit: str, date: str) -> dict:
+        return {"settings": {"seeds": seeds}, "device": "cpu", "commit": commit,
+                "date": date, "train_s": 1.0}
+    parts = [part([100], "b", "2026-11-28 08:02 UTC"), part([101], "a", "2026-11-27 22:34 UTC"),
+             part([102], "c", "2026-11-28 05:08 UTC")]
+    made = ledger.parts_made_text(parts, ("train_s",))
+    assert made["date"] == "2026-11-28 08:02 UTC"
+    assert made["commit"] == "a; c; b" and made["device"] == "cpu"
+    assert [p["seeds"] for p in made["parts"]] == [[100], [101], [102]]
