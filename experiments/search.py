@@ -241,8 +241,9 @@ def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
 def not_the_protocols(settings: Settings) -> str | None:
     """Why a selection made with ``settings`` is not the protocol's choice (``None`` if it
     is): the rule averages over all 9 scenario x learner pairs, on the selection seeds,
-    over the protocol's values, budgets and evaluations. Such a selection is provisional:
-    the tables refuse it."""
+    over the protocol's values and evaluations, at the protocol's budgets or its longer
+    ones (:data:`protocol.LONGER_BUDGETS`). Such a selection is provisional: the tables
+    refuse it."""
     _, values = protocol.SEARCHED[settings.variant]
     left_out = [f"{s}-{a}" for s in SCENARIOS for a in ALGOS
                 if s not in settings.scenarios or a not in settings.algos]
@@ -253,7 +254,10 @@ def not_the_protocols(settings: Settings) -> str | None:
         *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),
-        *([f"--steps {settings.steps}"] if settings.steps is not None else []),
+        *([f"--steps {settings.steps}"]
+          if {a: settings.budget(a) for a in ALGOS} not in (protocol.BUDGETS,
+                                                            protocol.LONGER_BUDGETS)
+          else []),
         *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
           != (protocol.EVAL_EVERY, protocol.EVAL_EPISODES) else []),
     ]

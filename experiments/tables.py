@@ -1005,11 +1005,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def selected(variant: str, given: float | None, quick: bool, searches: Path | None = None
-             ) -> tuple[float, str]:
+def selected(variant: str, given: float | None, quick: bool, searches: Path | None = None,
+             steps: int | None = None) -> tuple[float, str]:
     """The value of ``variant``'s parameter and where it came from: given, or the
     search's result in ``searches/<variant>/`` (default :data:`SEARCHES`), the protocol's
-    choice only; with ``quick``, a fixed value unless ``searches`` names (quick) searches,
+    choice only, made at the budgets these tables train (``steps`` per run, else the
+    protocol's); with ``quick``, a fixed value unless ``searches`` names (quick) searches,
     whose provisional choice it then takes, to check the way from searches to tables."""
     if given is not None:
         return given, "given on the command line"
@@ -1032,11 +1033,12 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
         raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
                              f"({why}): finish it on all 9 pairs at the protocol's settings, "
                              f"or give {option}")
-    budgets = protocol.BUDGETS
+    budgets = {algo: protocol.budget(algo, steps) for algo in ALGOS}
     if search.get("budgets") != budgets:  # e.g. the protocol's budgets changed after it ran
         raise cli.UsageError(f"the {variant} search at {path} trained the budgets "
-                             f"{search.get('budgets')}, not the protocol's {budgets}: run it "
-                             "again at the protocol's budgets")
+                             f"{search.get('budgets')}, not these tables' {budgets}: run it "
+                             "again at these budgets, or name searches made at them with "
+                             "--searches")
     where = path.parent.name if searches == SEARCHES else str(path.parent)
     fallback = " (its fallback: no value met the rule)" if chosen.get("fallback") else ""
     return float(chosen["value"]), f"selected by the search in {where}{fallback}"
@@ -1077,7 +1079,7 @@ def main(argv: list[str] | None = None) -> int:
                                      ("penalty", "pessimistic", args.penalty)):
             try:  # both named at once when both are missing
                 chosen[name], sources[name] = selected(variant, given, args.quick,
-                                                       args.searches)
+                                                       args.searches, args.steps)
             except cli.UsageError as error:
                 problems.append(str(error))
         if problems:

@@ -375,6 +375,11 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     quick = dataclasses.replace(full, quick=True, seeds=(100, 101))
     assert "the quick mode" in search.not_the_protocols(quick)
     assert "seeds" in search.not_the_protocols(quick)
+    # The protocol's longer budget (its amendment of 2026-11-27) is the protocol's too;
+    # another --steps is not.
+    assert search.not_the_protocols(dataclasses.replace(full, steps=6_000_000)) is None
+    assert "--steps 1000000" in search.not_the_protocols(
+        dataclasses.replace(full, steps=1_000_000))
     searches = tmp_path / "searches"
     for variant, protocol_choice in (("ccr", False), ("pessimistic", True)):
         (searches / variant).mkdir(parents=True)
@@ -401,8 +406,16 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
         "(its fallback: no value met the rule)")
     record["budgets"]["maac"] = 1_000_000
     (searches / "pessimistic" / "search.json").write_text(json.dumps(record))
-    with pytest.raises(tables.cli.UsageError, match="not the protocol's .* run it again"):
+    with pytest.raises(tables.cli.UsageError, match="not these tables' .* run it again"):
         tables.selected("pessimistic", None, False, searches)
+    # Tables at the longer budget take only searches made at it, and the way round.
+    record["budgets"] = {algo: 6_000_000 for algo in tables.ALGOS}
+    (searches / "pessimistic" / "search.json").write_text(json.dumps(record))
+    assert tables.selected("pessimistic", None, False, searches, 6_000_000)[0] == 3.0
+    with pytest.raises(tables.cli.UsageError, match="not these tables' .* --searches"):
+        tables.selected("pessimistic", None, False, searches)
+    with pytest.raises(tables.cli.UsageError, match="not these tables'"):
+        tables.selected("pessimistic", None, False, searches, 4_500_000)
     # --quick takes named (quick) searches' provisional choices, else its fixed values.
     assert tables.selected("ccr", None, True, searches) == (
         3.0, f"the provisional choice of the search in {searches / 'ccr'}")
