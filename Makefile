@@ -30,8 +30,8 @@ train: install
 demo: install
 	$(PY) -m ccrjax.demo --out runs/demo
 
-# The suite on both cores (one worker per test file), without the pipeline checks marked
-# slow; test-slow runs those (CI runs both).
+# The suite on both cores (one worker per test file), without the pipeline checks and the
+# others of a minute or more, marked slow; test-slow runs those (CI runs both).
 test: install
 	$(PY) -m pytest -n 2 --dist loadfile -m "not slow"
 

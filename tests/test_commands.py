@@ -171,6 +171,7 @@ def run_command(module: str, *args: str, env) -> subprocess.CompletedProcess:
     return process
 
 
+@pytest.mark.slow
 def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
     """Two penalties x two seeds of MADDPG, learning once 400 transitions are held (a
     budget of 900 steps and evaluations every 90, rounded to whole iterations of 200

@@ -782,6 +782,7 @@ def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_
     assert not (tmp_path / "parts").exists()
 
 
+@pytest.mark.slow
 def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(search, tmp_path,
                                                                           capsys):
     """``--part-seeds`` (each part trains every value on some seeds) and ``--part-values``

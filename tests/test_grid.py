@@ -14,6 +14,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 SCRIPT = textwrap.dedent(
     """
     import json
@@ -53,6 +55,7 @@ SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_sharded_grid_equals_single_device(subprocess_env):
     env = dict(subprocess_env)
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"

@@ -181,6 +181,7 @@ class QuickCompile(types.ModuleType):
         return jax.jit(function, compiler_options=options, **kwargs)
 
 
+@pytest.mark.slow
 def test_calibrate_runs_at_a_small_size(controllers, tmp_path, monkeypatch):
     calibrate = load_script("calibrate")
     monkeypatch.setattr(calibrate, "jax", QuickCompile("jax"))
