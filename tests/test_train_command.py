@@ -625,6 +625,7 @@ def test_only_the_latest_checkpoint_keeps_a_replay_buffer(finished_run, tmp_path
     assert status == 0, err
 
 
+@pytest.mark.slow
 def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
         finished_run, tmp_path, capsys):
     """``--resume --steps N`` with N above the budget: the run goes on from its last
