@@ -111,6 +111,13 @@ NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "candidate_budgets", "p
 PARTS = "parts"
 
 
+def folder_settings(record: dict[str, Any]) -> dict[str, Any]:
+    """The settings every cell of a results folder shares: the settings ``record`` less
+    :data:`NOT_IN_CELLS`, which say what one invocation made there (its scope, kept in its
+    own invocation record) and so differ between the invocations of one folder."""
+    return {k: v for k, v in record.items() if k not in NOT_IN_CELLS}
+
+
 def part_seeds_from(requested: list[int] | None, seeds: tuple[int, ...], what: str
                     ) -> tuple[int, ...]:
     """``--part-seeds`` checked against the ``seeds`` of the ``what`` (raising
@@ -593,6 +600,8 @@ class Ledger:
     ones (dropped when the settings changed) and this one, kept up to date. Invocations
     running in the same folder at once (parts of a grid side by side) each keep the
     others' records: every update re-reads the file under a lock and replaces only its own.
+    The file's settings are those the folder's cells share (:func:`folder_settings`); what
+    each invocation made (its scenarios, learners, parts) is in its own record's ``scope``.
     """
 
     def __init__(self, out: Path, settings: Any, command: str, experiment: str) -> None:
@@ -604,7 +613,9 @@ class Ledger:
                          if old and same_cells(old["settings"], self.settings) else [])
         self.start = time.perf_counter()
         self.current = {"id": uuid.uuid4().hex,  # one invocation, however often copied
-                        "command": command, "commit": git_commit(), "device": device_name(),
+                        "command": command,
+                        "scope": {k: v for k, v in self.settings.items() if k in NOT_IN_CELLS},
+                        "commit": git_commit(), "device": device_name(),
                         "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M %Z"),
                         "finished": False, "programs_trained": 0, "wall_time_s": 0.0}
         self.position: int | None = None  # where this record stands among the others
@@ -630,7 +641,8 @@ class Ledger:
                 self.previous = [record for record in on_disk["invocations"]
                                  if record.get("id") != self.current["id"]]
             write_atomic(self.out / INVOCATIONS,
-                         json.dumps({"experiment": self.experiment, "settings": self.settings,
+                         json.dumps({"experiment": self.experiment,
+                                     "settings": folder_settings(self.settings),
                                      "invocations": self.invocations}, indent=1) + "\n")
 
 

@@ -27,6 +27,7 @@ from ledger import (
     cell_identity,
     cell_is_current,
     check_out,
+    folder_settings,
     read_json,
     read_ledger,
     same_cells,
@@ -151,7 +152,8 @@ def plan(sources: list[Path], into: Path
             new += old is None
             if old is None or record.get("wall_time_s", 0) > old.get("wall_time_s", 0):
                 records[key] = record  # the later copy of a record
-    merged = {**reference, "invocations": list(records.values())}
+    merged = {**reference, "settings": folder_settings(reference["settings"]),
+              "invocations": list(records.values())}
     if experiment:
         merged["experiment"] = experiment
     return copies, stale, new, merged

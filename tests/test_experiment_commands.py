@@ -267,7 +267,7 @@ def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, 
     assert json.loads((into / "cells" / "nominal-iddpg.json").read_text())["label"] == "C"
     assert [(r["command"], r["wall_time_s"]) for r in ledger["invocations"]] == [
         ("a", 1.0), ("b", 5.0), ("c", 1.0)]
-    assert ledger["settings"] == settings
+    assert ledger["settings"] == {"seeds": [200, 201], "steps": None}  # less each one's scope
     out = capsys.readouterr().out
     assert "2 cell(s) copied" in out and "2 invocation record(s) added" in out
     assert "left out 1 cell(s) made with other settings" in out and "hazard-iddpg" in out
@@ -757,21 +757,29 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
 
 def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_path):
     """Two invocations working in one folder at once (parts of a grid side by side): every
-    update of one keeps the other's record, each in the place it began; and parts that the
+    update of one keeps the other's record, each in the place it began, and its own scope
+    (the file's settings are the cells' alone, whoever wrote last); and parts that the
     other invocation has just joined and deleted are no error to delete again."""
     import ledger
 
-    settings = search.settings_from(search.build_parser().parse_args(
-        ["--variant", "pessimistic", "--quick"]))
-    first = ledger.Ledger(tmp_path, settings, "first", "search")
+    def settings(*extra: str):
+        return search.settings_from(search.build_parser().parse_args(
+            ["--variant", "pessimistic", "--quick", *extra]))
+
+    first = ledger.Ledger(tmp_path, settings("--part-seeds", "100"), "first", "search")
     first.record(0)
-    second = ledger.Ledger(tmp_path, settings, "second", "search")
+    second = ledger.Ledger(tmp_path, settings("--algos", "maac"), "second", "search")
     second.record(0)
     first.record(1, finished=True)  # written from a view that began before the second
     second.record(1)
-    records = json.loads((tmp_path / "invocations.json").read_text())["invocations"]
+    written = json.loads((tmp_path / "invocations.json").read_text())
+    records = written["invocations"]
     assert [(r["command"], r["finished"]) for r in records] == [("first", True),
                                                                  ("second", False)]
+    assert [(r["scope"]["part_seeds"], r["scope"]["algos"]) for r in records] == [
+        ([100], ["iddpg", "maddpg", "maac"]), ([], ["maac"])]
+    assert written["settings"] == ledger.folder_settings(ledger.settings_record(settings()))
+    assert not set(ledger.NOT_IN_CELLS) & set(written["settings"])
     assert [r["command"] for r in first.invocations] == ["first", "second"]
     (tmp_path / "parts").mkdir()
     (tmp_path / "parts" / "other-seeds-3.json").write_text("{}")
