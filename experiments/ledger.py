@@ -303,7 +303,7 @@ def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
     """What a cell of learner ``algo`` depends on: the settings ``record`` less
     :data:`NOT_IN_CELLS`, with ``steps`` replaced by the budget its runs trained for
     (``budget``, else ``steps`` or the protocol's budget of ``algo``)."""
-    kept = {k: v for k, v in record.items() if k not in (*NOT_IN_CELLS, "steps")}
+    kept = {k: v for k, v in folder_settings(record).items() if k != "steps"}
     kept["budget"] = protocol.budget(algo, record.get("steps")) if budget is None else budget
     return kept
 
