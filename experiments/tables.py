@@ -30,8 +30,8 @@ about 7.3 minutes of the whole CPU per run), so the whole grid takes about 6 to 
 parts over several sessions (``docs/experiments.md``). On a GPU it is far shorter: the
 committed grid was made on an H100 on 2026-11-26 in 30m40s of programs (compiling and
 training; 83 s to 4.2 minutes per scenario and learner, both programs), in two sessions.
-At ``--steps 6000000`` (the tables beside the searches at 6M) every run costs twice as
-much: on 2026-11-29 (commits ``600ec9b`` and ``cccb43e``), parts of the obstacle x IDDPG
+At ``--steps 6000000`` (the tables beside the searches at 6M) every run has twice the
+steps: on 2026-11-29 (commits ``600ec9b`` and ``cccb43e``), parts of the obstacle x IDDPG
 programs, two side by side, trained about 11.5 minutes of one core per run, and the MAAC
 search's parts that day about 25 per MAAC run, so that grid is about 40 hours of this CPU
 on such a day (its speed varied 2.4 times between sessions).
