@@ -23,6 +23,7 @@ CCR's signal.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -42,14 +43,22 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 os.environ["JAX_DEFAULT_MATMUL_PRECISION"] = "highest"
 jax.config.update("jax_default_matmul_precision", "highest")
 
-# One cache for the whole run: pytest-xdist's workers share the run's id.
-_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-if _RUN:
-    _CACHE = os.path.join(tempfile.gettempdir(), f"ccrjax-test-xla-{_RUN}")
-    os.makedirs(_CACHE, exist_ok=True)
-else:
-    _CACHE = tempfile.mkdtemp(prefix="ccrjax-test-xla-")
+# One cache for the whole run, made by the process pytest started in: pytest-xdist's workers
+# inherit its environment (they start after this file is read) and use the same folder, and
+# that process removes it when the run ends (pytest_unconfigure below), so repeated runs
+# leave nothing behind in the temporary folder.
+_CACHE_VARIABLE = "CCRJAX_TEST_XLA_CACHE"
+_SHARED = os.environ.get(_CACHE_VARIABLE) if "PYTEST_XDIST_WORKER" in os.environ else None
+_OWN_CACHE = _SHARED is None or not os.path.isdir(_SHARED)
+_CACHE = tempfile.mkdtemp(prefix="ccrjax-test-xla-") if _OWN_CACHE else _SHARED
+os.environ[_CACHE_VARIABLE] = _CACHE
 jax.config.update("jax_compilation_cache_dir", _CACHE)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """Remove the run's compilation cache from the process that made it, after its workers."""
+    if _OWN_CACHE:
+        shutil.rmtree(_CACHE, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
@@ -59,6 +68,7 @@ def subprocess_env() -> dict[str, str]:
     env["JAX_COMPILATION_CACHE_DIR"] = _CACHE
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
 
 # The experiments' scripts import their sibling modules (protocol, ledger, ...) as a script
 # run from experiments/ would.
