@@ -31,10 +31,12 @@ parts over several sessions (``docs/experiments.md``). On a GPU it is far shorte
 committed grid was made on an H100 on 2026-11-26 in 30m40s of programs (compiling and
 training; 83 s to 4.2 minutes per scenario and learner, both programs), in two sessions.
 At ``--steps 6000000`` (the tables beside the searches at 6M) every run has twice the
-steps: on 2026-11-29 (commits ``600ec9b`` and ``cccb43e``), parts of the obstacle x IDDPG
-programs, two side by side, trained about 11.5 minutes of one core per run, and the MAAC
-search's parts that day about 25 per MAAC run, so that grid is about 40 hours of this CPU
-on such a day (its speed varied 2.4 times between sessions).
+steps. Measured (``experiments/results/tables_6m``, 2026-11-29 and 30): the 12 IDDPG and
+MADDPG programs, made on this CPU in two-seed parts run two or three side by side, trained
+21.4 h (IDDPG) and 33.6 h (MADDPG) in all, about 10.6 and 14.9 hours of wall; MAAC's two
+parts side by side trained 7 of 60 evaluations in 15 minutes, about 24 hours of wall for
+its 6 programs, so about 50 hours for the grid here (the CPU's speed varied 2.4 times
+between sessions). An H200 made those 6 MAAC programs in 12 minutes, one lane per scenario.
 Cells are resumable across invocations, so the grid can be spread over several; the
 program in training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/``
 and resumed from there (:mod:`ccrjax.run.grid_checkpoint`).
