@@ -33,7 +33,7 @@ training; 83 s to 4.2 minutes per scenario and learner, both programs), in two s
 At ``--steps 6000000`` (the tables beside the searches at 6M) every run has twice the
 steps. Measured (``experiments/results/tables_6m``, 2026-11-29 and 30): the 12 IDDPG and
 MADDPG programs, made on this CPU in two-seed parts run two or three side by side, trained
-21.4 h (IDDPG) and 33.6 h (MADDPG) in all, about 10.6 and 14.9 hours of wall; MAAC's two
+21.3 h (IDDPG) and 33.4 h (MADDPG) in all, about 10.6 and 14.9 hours of wall; MAAC's two
 parts side by side trained 7 of 60 evaluations in 15 minutes, about 24 hours of wall for
 its 6 programs, so about 50 hours for the grid here (the CPU's speed varied 2.4 times
 between sessions). An H200 made those 6 MAAC programs in 12 minutes, one lane per scenario.
