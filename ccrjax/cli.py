@@ -257,6 +257,20 @@ def int_tuple(text: str) -> tuple[int, ...]:
     return values
 
 
+def float_tuple(text: str) -> tuple[float, ...]:
+    """``"-1,1"`` to ``(-1.0, 1.0)``: finite numbers (a value starting with ``-`` is given
+    as ``--option=-1,1``). The dataclass the numbers go to checks their meaning."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be comma-separated numbers such as -1,1, got {text!r}"
+        ) from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
+    return values
+
+
 def boolean(text: str) -> bool:
     lowered = text.lower()
     if lowered in ("1", "true", "yes", "on"):
@@ -278,6 +292,8 @@ def _converter(annotation: Any, default: Any) -> tuple[Callable[[str], Any], str
     if kind is float:
         return (lambda text: _number(text, float)), "X"
     if kind is tuple:
+        if default and all(isinstance(v, float) for v in default):
+            return float_tuple, "X1,X2"
         return int_tuple, "W1,W2"
     if kind is str:
         return str, "NAME"

@@ -328,7 +328,7 @@ def training_record(config: TrainConfig) -> dict[str, Any]:
         "num_robots": config.num_robots, "episode_length": config.episode_length,
         "num_envs": config.num_envs, "learning_starts": config.learning_starts,
         "transform": {k: v for k, v in transform.items() if k not in SEARCHED_FIELDS},
-        "scenario": dataclasses.asdict(env.scenario), "layout": dataclasses.asdict(env.layout),
+        "scenario": dataclasses.asdict(env.scenario), "layout": env.layout.record(),
         "physics": dataclasses.asdict(env.physics), "sensitivity": env.sensitivity,
         "robot_radius": env.robot_radius,
     }

@@ -87,6 +87,7 @@ def check_team(scenario: Scenario, num_robots: int, episode_length: int,
     check_int("", "episode_length", episode_length, 1)
     layout = layout or Layout()
     layout.check_team(num_robots, robot_radius)
+    layout.check_episode(num_robots, episode_length)
     scenario.check_layout(layout, robot_radius)
 
 
