@@ -51,7 +51,7 @@ from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.agents.replay import grow
 from ccrjax.cli import INTERRUPTED, UsageError
-from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.envs.scenarios import SCENARIOS, Layout
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, holds_buffer, report_skipped
 from ccrjax.run.folder import (
     EVAL_METRICS,
@@ -67,9 +67,10 @@ from ccrjax.run.folder import (
 from ccrjax.run.policy import POLICY_DIR, POLICY_RECORD, export_policy
 from ccrjax.run.spec import RunSpec
 from ccrjax.training import DEFAULT_BUDGET, TrainConfig, make_train
+from ccrjax.training.config import TRANSFORM_TYPES
 from ccrjax.training.program import NonFinite, first_nonfinite
 from ccrjax.transforms import VARIANTS, Pessimistic
-from ccrjax.transforms.ccr import CCR, CCRConfig
+from ccrjax.transforms.ccr import CCR, CCRConfig, DangerFlags
 from ccrjax.viz.episode_pictures import (
     PICTURE_KEY,
     record_trained_episode,
@@ -82,7 +83,16 @@ from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
 PROG = "python -m ccrjax.train"
 # The configuration dataclasses whose fields are options, and the options' prefix
 # (--ddpg-gamma is DDPGConfig.gamma): errors name the option, not the field.
-OPTION_PREFIXES = {"DDPGConfig": "ddpg", "MAACConfig": "maac", "CCRConfig": "ccr"}
+# DangerFlags' comm_range is --ccr-comm-range too.
+OPTION_PREFIXES = {"DDPGConfig": "ddpg", "MAACConfig": "maac", "CCRConfig": "ccr",
+                   "DangerFlags": "ccr",
+                   "Layout": "layout"}
+# The layout's fields that are options: the regime's two knobs (hazard placement, team
+# formation) and the arena that a long column needs; the start box and target area stay.
+LAYOUT_OPTION_FIELDS = ("hazard_x_range", "hazard_y_range", "formation", "column_spacing",
+                        "column_lateral", "arena_half_extent")
+# CCRConfig's fields of the dynamics model: no option of the variants without one.
+CCR_MODEL_FIELDS = ("degree", "ridge", "tolerance")
 # A new run's defaults are make train's: MADDPG with CCR on the hidden obstacle.
 DEFAULT_TRAIN = TrainConfig(scenario="hidden_obstacle", variant="ccr")
 # The options that set a TrainConfig field (option, field, converter, extras): the parser
@@ -154,9 +164,32 @@ def build_parser() -> argparse.ArgumentParser:
                               exclude=("centralised_critic",))
     cli.add_dataclass_options(parser, MAACConfig, OPTION_PREFIXES["MAACConfig"],
                               "MAAC hyperparameters")
-    cli.add_dataclass_options(parser, CCRConfig, OPTION_PREFIXES["CCRConfig"], "CCR parameters",
+    cli.add_dataclass_options(parser, CCRConfig, OPTION_PREFIXES["CCRConfig"],
+                              "CCR parameters (ccr and its parts ccr_scores, ccr_reward, "
+                              "ccr_perfect; --ccr-comm-range also danger_flags)",
                               exclude=("lam",))
+    cli.add_dataclass_options(
+        parser, Layout, OPTION_PREFIXES["Layout"],
+        "regime: hazard placement and team formation (a value starting with '-' is written "
+        "--layout-hazard-y-range=-1,1)",
+        exclude=[f.name for f in dataclasses.fields(Layout) if f.name not in LAYOUT_OPTION_FIELDS])
     return parser
+
+
+def ccr_option_variants(field: str) -> list[str]:
+    """The variants that take ``CCRConfig``'s ``field`` (``--lam``, ``--ccr-*``): CCR and its
+    parts (:mod:`ccrjax.transforms.ccr.parts`), ``lam`` only where the intrinsic reward is
+    added, the model's ``degree``, ``ridge`` and ``tolerance`` only where the model detects;
+    ``comm_range`` also for ``danger_flags``."""
+    variants = []
+    for variant, transform_type in TRANSFORM_TYPES.items():
+        if issubclass(transform_type, CCR):
+            if (field != "lam" or transform_type.intrinsic) and (
+                    field not in CCR_MODEL_FIELDS or transform_type.detector == "model"):
+                variants.append(variant)
+        elif issubclass(transform_type, DangerFlags) and field == "comm_range":
+            variants.append(variant)
+    return variants
 
 
 def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
@@ -186,10 +219,16 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     ccr = cli.dataclass_overrides(args, "ccr")
     if args.lam is not None:
         ccr["lam"] = args.lam
-    if ccr and variant != "ccr":
-        given = "--lam" if args.lam is not None else "--ccr-* options"
-        verb = "applies" if args.lam is not None else "apply"
-        raise UsageError(f"{given} {verb} to --variant ccr, not {variant}")
+    for field in ccr:  # each --ccr-* option (and --lam) only where the variant uses it
+        allowed = ccr_option_variants(field)
+        if variant not in allowed:
+            option = "--lam" if field == "lam" else f"--ccr-{field.replace('_', '-')}"
+            listed = " or ".join([", ".join(allowed[:-1]), allowed[-1]] if len(allowed) > 1
+                                 else allowed)
+            raise UsageError(f"{option} applies to --variant {listed}, not {variant}")
+    layout = cli.dataclass_overrides(args, "layout")
+    if layout:
+        fields["layout_params"] = {**train.layout_params, **layout}
     train = dataclasses.replace(train, **fields)
     if ddpg or maac:
         train = dataclasses.replace(train, learner=dataclasses.replace(
@@ -197,8 +236,10 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     if args.penalty is not None:
         train = dataclasses.replace(train, transform=Pessimistic(penalty=args.penalty))
     if ccr:
-        train = dataclasses.replace(train, transform=CCR(dataclasses.replace(
-            train.transform_config.config, **ccr)))
+        transform = train.transform_config  # CCR or one of its parts, or DangerFlags
+        transform = (type(transform)(dataclasses.replace(transform.config, **ccr))
+                     if isinstance(transform, CCR) else dataclasses.replace(transform, **ccr))
+        train = dataclasses.replace(train, transform=transform)
     train = dataclasses.replace(train, learner=train.learner_config,
                                 transform=train.transform_config,
                                 total_env_steps=train.budget)
@@ -791,9 +832,9 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     print(f"\npictures: {png}  {gif}  {folder.path / 'curves.png'}")
     print(f"policy: {folder.path / policy.name} (ccrjax.load_policy({str(folder.path)!r}, "
           f"seed={seeds[0]}))")
-    if config.variant == "ccr":  # its policy reads scores that only whole episodes give
+    if program.transform.extra_obs_size(program.env):  # what only whole episodes give
         print(f"team: ccrjax.load_team({str(folder.path)!r}, seed={seeds[0]}) runs whole "
-              "episodes with CCR's model and shared scores")
+              f"episodes with the {config.variant} transform's shared features")
     stale = earlier_evaluation(folder.path, final_steps)
     if stale is not None:
         print(f"evaluation.json evaluated the checkpoint at {stale:,} steps per seed, before "

@@ -2,11 +2,14 @@
 
     python tools/parity.py --out before.json     # on the old code
     python tools/parity.py --check before.json   # on the new code: exit 1 on any difference
+    python tools/parity.py --check before.json --variants plain ccr   # only those variants
 
 Trains every learner with every variant for a few iterations at a tiny size (2 seeds,
 learning from the 40th transition, so updates happen) and records, per run, a SHA-256 of
 every leaf of the final training state and of the evaluation history. Equal digests mean
-bit-identical parameters, optimiser states, buffers, keys and metrics.
+bit-identical parameters, optimiser states, buffers, keys and metrics. ``--check`` compares
+the runs both have; runs missing from the baseline (variants added since) are listed as new,
+not as differences, and baseline runs not made here (``--variants``) as not checked.
 """
 
 from __future__ import annotations
@@ -34,10 +37,10 @@ def digest(tree) -> str:
     return hasher.hexdigest()
 
 
-def fingerprints() -> dict[str, dict[str, str]]:
+def fingerprints(variants: tuple[str, ...] = VARIANTS) -> dict[str, dict[str, str]]:
     result = {}
     for algo in ALGOS:
-        for variant in VARIANTS:
+        for variant in variants:
             config = TrainConfig(
                 algo=algo, scenario="hidden_obstacle", variant=variant, num_envs=2,
                 episode_length=10, total_env_steps=400, eval_every=200, eval_episodes=4,
@@ -61,17 +64,26 @@ def main() -> int:
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--out")
     group.add_argument("--check")
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS),
+                        help="the variants to train (default: all)")
     args = parser.parse_args()
-    found = fingerprints()
+    found = fingerprints(tuple(args.variants))
     if args.out:
         with open(args.out, "w") as handle:
             json.dump(found, handle, indent=1)
         return 0
     with open(args.check) as handle:
         expected = json.load(handle)
-    different = sorted(k for k in expected if expected[k] != found.get(k))
-    print("identical" if not different else f"different: {different}")
-    return 1 if different else 0
+    compared = sorted(k for k in expected if k in found)
+    different = [k for k in compared if expected[k] != found[k]]
+    new = sorted(set(found) - set(expected))
+    unchecked = sorted(set(expected) - set(found))
+    print(f"identical ({len(compared)} runs)" if not different else f"different: {different}")
+    if new:
+        print(f"new (not in {args.check}, not compared): {new}")
+    if unchecked:
+        print(f"not checked (not run here): {unchecked}")
+    return 1 if different or not compared else 0
 
 
 if __name__ == "__main__":

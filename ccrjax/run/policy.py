@@ -50,6 +50,17 @@ from ccrjax.training import (
 POLICY_DIR = "policy"
 POLICY_RECORD = "policy.json"
 TRANSFORM_STATE = "transform"
+# What a variant's observations hold after the environment's features (policy.json's
+# extra_obs); the variants not named here add nothing.
+EXTRA_OBS = {
+    "ccr": "the other robots' shared emergency scores (N - 1), after the environment's features",
+    "ccr_scores": "the other robots' shared emergency scores (N - 1), after the environment's "
+                  "features",
+    "ccr_perfect": "the other robots' shared emergency scores (N - 1) of their true danger "
+                   "flags, after the environment's features",
+    "danger_flags": "the other robots' current danger flags within range (N - 1), after the "
+                    "environment's features",
+}
 
 
 def export_policy(run_folder: str | Path, program: TrainProgram, learner_state: Any,
@@ -67,8 +78,7 @@ def export_policy(run_folder: str | Path, program: TrainProgram, learner_state: 
     record = {"algo": config.algo, "scenario": config.scenario, "variant": config.variant,
               "num_robots": config.num_robots, "obs_size": int(program.obs_size),
               "env_obs_size": int(program.env.observation_size),
-              "extra_obs": ("the other robots' shared emergency scores (N - 1), after the "
-                            "environment's features" if config.variant == "ccr" else None),
+              "extra_obs": EXTRA_OBS.get(config.variant),
               "discrete_actions": bool(program.learner.discrete), "seeds": list(seeds),
               "transform_state": bool(jax.tree_util.tree_leaves(transform_state))}
     write_atomic(folder / POLICY_RECORD, json.dumps(record, indent=1) + "\n")

@@ -19,10 +19,17 @@ from ccrjax.agents.replay import replay_capacity
 from ccrjax.agents.types import Learner
 from ccrjax.checks import check_int, check_positive_int
 from ccrjax.envs.env import CCREnv, check_team
-from ccrjax.envs.scenarios import SCENARIOS, make_scenario
+from ccrjax.envs.scenarios import SCENARIOS, Layout, make_scenario
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.transforms import VARIANTS, Pessimistic, Plain, Transform
-from ccrjax.transforms.ccr import CCR, CCRConfig
+from ccrjax.transforms.ccr import (
+    CCR,
+    CCRConfig,
+    CCRPerfect,
+    CCRReward,
+    CCRScores,
+    DangerFlags,
+)
 
 # Learning starts after this many transitions per seed, whatever the learner and episode
 # length: the original MADDPG's 1024 x 25 (its batch size times its episode length).
@@ -33,7 +40,9 @@ DEFAULT_BUDGET = {"iddpg": 400_000, "maddpg": 400_000, "maac": 200_000}
 
 
 # The transform of each variant, with its parameters: its type and its defaults.
-TRANSFORM_TYPES: dict[str, type] = {"plain": Plain, "pessimistic": Pessimistic, "ccr": CCR}
+TRANSFORM_TYPES: dict[str, type] = {"plain": Plain, "pessimistic": Pessimistic, "ccr": CCR,
+                                     "ccr_scores": CCRScores, "ccr_reward": CCRReward,
+                                     "ccr_perfect": CCRPerfect, "danger_flags": DangerFlags}
 LEARNER_CONFIG_TYPES: dict[str, type] = {"iddpg": DDPGConfig, "maddpg": DDPGConfig,
                                          "maac": MAACConfig}
 
@@ -53,9 +62,10 @@ class TrainConfig:
 
     algo: str = "maddpg"  # learner: iddpg, maddpg or maac
     scenario: str = "nominal"  # emergency scenario
-    variant: str = "plain"  # plain learner, pessimistic baseline, or ccr
-    # The variant's transform and its parameters: Plain(), Pessimistic(penalty) or
-    # CCR(CCRConfig); None: the variant's defaults.
+    variant: str = "plain"  # plain learner, pessimistic baseline, ccr, or one of ccr's parts
+    # The variant's transform and its parameters: Plain(), Pessimistic(penalty),
+    # CCR(CCRConfig) (and its parts CCRScores, CCRReward, CCRPerfect), or
+    # DangerFlags(comm_range); None: the variant's defaults.
     transform: Plain | Pessimistic | CCR | None = None
     # The learner's hyperparameters: a DDPGConfig (iddpg, maddpg) or a MAACConfig (maac);
     # None: the learner's defaults.
@@ -68,6 +78,10 @@ class TrainConfig:
     eval_episodes: int = 64  # fresh episodes per evaluation and seed
     learning_starts: int = LEARNING_STARTS  # transitions per seed before the first update
     scenario_params: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # Layout fields that differ from ccrjax.envs.scenarios.Layout's defaults: the hazard
+    # placement (hazard_x_range, hazard_y_range) and the team formation (formation,
+    # column_spacing, column_lateral), the two knobs of a regime; {}: today's layout.
+    layout_params: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.algo not in ALGOS:
@@ -90,7 +104,7 @@ class TrainConfig:
             check_positive_int("TrainConfig", name, getattr(self, name))
         check_int("TrainConfig", "learning_starts", self.learning_starts, 0)
         scenario = make_scenario(self.scenario, **self.scenario_params)  # checks its params
-        check_team(scenario, self.num_robots, self.episode_length)
+        check_team(scenario, self.num_robots, self.episode_length, layout=self.layout)
         if self.budget < self.min_total_env_steps:
             raise ValueError(
                 f"total_env_steps (--steps) {self.budget:,} ends before learning "
@@ -98,6 +112,20 @@ class TrainConfig:
                 f"(learning_starts {self.learning_starts:,} transitions, collected "
                 f"{self.steps_per_iteration:,} per iteration)"
             )
+
+    @property
+    def layout(self) -> Layout:
+        """The environment's layout: :class:`Layout`'s defaults with ``layout_params`` on top
+        (lists, as JSON gives them, become pairs); unknown names raise ``ValueError``."""
+        if not isinstance(self.layout_params, dict):
+            raise ValueError(f"TrainConfig.layout_params must be a dict, got "
+                             f"{self.layout_params!r}")
+        unknown = sorted(set(self.layout_params) - {f.name for f in dataclasses.fields(Layout)})
+        if unknown:
+            raise ValueError(f"unknown layout parameter(s) {unknown}; Layout takes "
+                             f"{[f.name for f in dataclasses.fields(Layout)]}")
+        return Layout(**{name: tuple(value) if isinstance(value, list) else value
+                         for name, value in self.layout_params.items()})
 
     @property
     def budget(self) -> int:
@@ -191,8 +219,13 @@ class TrainConfig:
 
 def config_to_dict(config: TrainConfig) -> dict[str, Any]:
     """Every field of ``config``, nested configurations included, as JSON-ready values
-    (``transform`` and ``learner`` as the fields of their dataclass, or ``None``)."""
-    return dataclasses.asdict(config)
+    (``transform`` and ``learner`` as the fields of their dataclass, or ``None``).
+    ``layout_params`` is written only when it holds something, so that a run of today's
+    layout has the record (and checkpoint fingerprint) it had before layouts were options."""
+    record = dataclasses.asdict(config)
+    if not record["layout_params"]:
+        del record["layout_params"]
+    return record
 
 
 def _tuples(value: Any) -> Any:
@@ -204,8 +237,9 @@ def _tuples(value: Any) -> Any:
 
 
 def _transform_from_dict(variant: str, data: dict[str, Any]) -> Plain | Pessimistic | CCR:
-    if variant == "ccr":
-        return CCR(CCRConfig(**data.get("config", {})))
+    transform_type = TRANSFORM_TYPES[variant]
+    if issubclass(transform_type, CCR):  # ccr and its parts: the fields of their CCRConfig
+        return transform_type(CCRConfig(**data.get("config", {})))
     return TRANSFORM_TYPES[variant](**data)
 
 
@@ -234,6 +268,7 @@ def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
         discrete_action_set=(config.learner_config.action_set if config.algo == "maac"
                              else DEFAULT_DISCRETE_ACTION_SET),
         scenario_params=dict(config.scenario_params),
+        layout=config.layout,
     )
 
 

@@ -1,10 +1,21 @@
 """Reward transforms between the environment and the learner: the Transform protocol, the
-plain and pessimistic baselines (:mod:`ccrjax.transforms.base`) and CCR
-(:mod:`ccrjax.transforms.ccr`). A learner never knows which one it trains under."""
+plain and pessimistic baselines (:mod:`ccrjax.transforms.base`), CCR
+(:mod:`ccrjax.transforms.ccr`) and its parts taken apart (:mod:`ccrjax.transforms.ccr.parts`).
+A learner never knows which one it trains under."""
 
 from ccrjax.transforms.base import Pessimistic, Plain, Transform
-from ccrjax.transforms.ccr import CCR, CCRConfig, CCRState
+from ccrjax.transforms.ccr import (
+    CCR,
+    CCRConfig,
+    CCRPerfect,
+    CCRReward,
+    CCRScores,
+    CCRState,
+    DangerFlags,
+)
 
-VARIANTS = ("plain", "pessimistic", "ccr")
+VARIANTS = ("plain", "pessimistic", "ccr", "ccr_scores", "ccr_reward", "ccr_perfect",
+            "danger_flags")
 
-__all__ = ["CCR", "VARIANTS", "CCRConfig", "CCRState", "Pessimistic", "Plain", "Transform"]
+__all__ = ["CCR", "VARIANTS", "CCRConfig", "CCRPerfect", "CCRReward", "CCRScores", "CCRState",
+           "DangerFlags", "Pessimistic", "Plain", "Transform"]

@@ -6,7 +6,8 @@ One idea per module:
   closed-form fit;
 * :mod:`ccrjax.transforms.ccr.scores`: emergency scores, their rolling mean, what robots share;
 * :mod:`ccrjax.transforms.ccr.intrinsic`: the paper's intrinsic reward;
-* :mod:`ccrjax.transforms.ccr.transform`: all of it as a transform (:mod:`ccrjax.transforms.base`).
+* :mod:`ccrjax.transforms.ccr.transform`: all of it as a transform (:mod:`ccrjax.transforms.base`);
+* :mod:`ccrjax.transforms.ccr.parts`: its parts alone, a perfect detector, shared danger flags.
 """
 
 from ccrjax.transforms.ccr.dynamics import (
@@ -27,6 +28,7 @@ from ccrjax.transforms.ccr.dynamics import (
     squared_error,
 )
 from ccrjax.transforms.ccr.intrinsic import intrinsic_reward
+from ccrjax.transforms.ccr.parts import CCRPerfect, CCRReward, CCRScores, DangerFlags
 from ccrjax.transforms.ccr.scores import (
     ScoreWindow,
     emergency_score,
@@ -51,7 +53,11 @@ __all__ = [
     "CCR",
     "CCRConfig",
     "CCREpisodeState",
+    "CCRPerfect",
+    "CCRReward",
+    "CCRScores",
     "CCRState",
+    "DangerFlags",
     "DynamicsStatistics",
     "EpisodeArrays",
     "SENSING_DANGER",

@@ -23,17 +23,23 @@ directions to the other robots are observation features already
 geometry of its own; ``intrinsic_reward`` and ``shared_scores`` (from positions)
 are the reference definitions the tests compare with.
 
+Three class-level switches take CCR apart (:mod:`ccrjax.transforms.ccr.parts` sets them, one
+variant each): :attr:`CCR.scores_in_obs` (step 5's shared scores), :attr:`CCR.intrinsic` (step
+4's reward) and :attr:`CCR.detector`, the raw score of step 1: ``"model"`` (the dynamics model's
+prediction error, steps 1-2) or ``"danger"`` (the environment's true danger flags, 1 or 0: a
+perfect detector, with no model to fit). CCR itself has them all on, with the model.
+
 ``info`` reports, per robot ``[N, E]``: ``emergency_score`` (``E_{t+1}``),
-``intrinsic_reward`` and ``ccr_state``, the paper's trajectory colour (index into
-``ccrjax.viz.render.CCR_STATE_NAMES``): 1 "sensing danger" if the own smoothed score
-exceeds ``sensing_threshold``, else 2 "activated" if ``|R_in|`` exceeds
-``activation_threshold``, else 0 "standby".
+``intrinsic_reward`` (the one added to the reward: zero without it) and ``ccr_state``,
+the paper's trajectory colour (index into ``ccrjax.viz.render.CCR_STATE_NAMES``): 1
+"sensing danger" if the own smoothed score exceeds ``sensing_threshold``, else 2
+"activated" if ``|R_in|`` exceeds ``activation_threshold``, else 0 "standby".
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import chex
 import jax
@@ -120,18 +126,20 @@ class EpisodeArrays:
     # The episode's transitions for the model, one row per step: phi(x) [P], the targets
     # y [4] and the squared error e [1] under this episode's coefficients, [T, N, P + 5, E];
     # they enter the statistics once, at the episode's end (one large product instead of
-    # T small ones: the same weighted means, fewer operations per step).
-    transitions: jax.Array
+    # T small ones: the same weighted means, fewer operations per step). None without a model.
+    transitions: jax.Array | None
 
 
 @struct.dataclass
 class CCRState:
     """CCR's state from one episode to the next: nothing in it depends on the batch ``E``
-    (training and evaluation episodes share it)."""
+    (training and evaluation episodes share it). Without a model (``detector="danger"``)
+    ``statistics`` and ``coefficients`` are ``None``, and ``params`` may be empty (no
+    intrinsic reward, no ``lam``)."""
 
-    params: dict[str, jax.Array]  # {"lam": float32[]}
-    statistics: dynamics.DynamicsStatistics
-    coefficients: jax.Array  # float32[P, 4], fitted at the last episode start
+    params: dict[str, jax.Array]  # {"lam": float32[]}, or {} without the intrinsic reward
+    statistics: dynamics.DynamicsStatistics | None
+    coefficients: jax.Array | None  # float32[P, 4], fitted at the last episode start
     discrete_actions: bool = struct.field(pytree_node=False, default=False)
     discrete_action_set: str = struct.field(pytree_node=False, default="box9")
     episode_length: int = struct.field(pytree_node=False, default=0)  # T: rows of transitions
@@ -152,24 +160,32 @@ class CCR:
 
     config: CCRConfig = CCRConfig()
     name = "ccr"
+    # CCR's parts, on or off (class constants, not configuration: one variant each).
+    scores_in_obs: ClassVar[bool] = True  # the other robots' scores follow the observation
+    intrinsic: ClassVar[bool] = True  # the intrinsic reward is added to the reward
+    detector: ClassVar[str] = "model"  # raw score: "model" error or true "danger" flags
 
     def __post_init__(self) -> None:
         if not isinstance(self.config, CCRConfig):
-            raise ValueError(f"CCR.config must be a CCRConfig, got {self.config!r}")
+            raise ValueError(f"{type(self).__name__}.config must be a CCRConfig, "
+                             f"got {self.config!r}")
 
     def extra_obs_size(self, env: CCREnv) -> int:
-        """The other robots' shared scores: ``N - 1``."""
-        return env.num_robots - 1
+        """The other robots' shared scores: ``N - 1`` (0 without them)."""
+        return env.num_robots - 1 if self.scores_in_obs else 0
 
     def default_params(self) -> dict[str, float]:
-        return {"lam": float(self.config.lam)}
+        """``lam``, where the intrinsic reward is added; nothing otherwise."""
+        return {"lam": float(self.config.lam)} if self.intrinsic else {}
 
     def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> CCRState:
-        """An untrained model (zero statistics and coefficients) and the run's ``lam``."""
+        """An untrained model (zero statistics and coefficients; none for the ``danger``
+        detector) and the run's ``lam``."""
+        model = self.detector == "model"
         return CCRState(
             params=as_params(self.default_params(), params),
-            statistics=dynamics.init_statistics(self.config.degree),
-            coefficients=dynamics.init_coefficients(self.config.degree),
+            statistics=dynamics.init_statistics(self.config.degree) if model else None,
+            coefficients=dynamics.init_coefficients(self.config.degree) if model else None,
             discrete_actions=env.discrete_actions,
             discrete_action_set=env.discrete_action_set,
             episode_length=env.episode_length,
@@ -182,14 +198,21 @@ class CCR:
         chex.assert_rank(obs, 3)
         num_robots, _, num_envs = obs.shape
         score = jnp.zeros((num_robots, num_envs), jnp.float32)
-        rows = dynamics.num_features(self.config.degree) + dynamics.NUM_OUTPUTS + 1
+        between, transitions = state, None  # the danger detector: no model
+        if self.detector == "model":
+            rows = dynamics.num_features(self.config.degree) + dynamics.NUM_OUTPUTS + 1
+            between = state.replace(coefficients=dynamics.fit(state.statistics,
+                                                              self.config.ridge))
+            transitions = jnp.zeros((state.episode_length, num_robots, rows, num_envs))
         episode_state = CCREpisodeState(
-            between=state.replace(coefficients=dynamics.fit(state.statistics, self.config.ridge)),
+            between=between,
             episode=EpisodeArrays(
                 window=init_window(self.config.window, num_robots, num_envs), score=score,
-                transitions=jnp.zeros((state.episode_length, num_robots, rows, num_envs)),
+                transitions=transitions,
             ),
         )
+        if not self.scores_in_obs:
+            return episode_state, obs
         shared = jnp.zeros((num_robots, num_robots - 1, num_envs), obs.dtype)
         return episode_state, jnp.concatenate([obs, shared], axis=1)
 
@@ -212,31 +235,25 @@ class CCR:
         chex.assert_shape(next_env_state.reward, (num_robots, num_envs))
 
         own_state, next_own_state = obs[:, 0:4], next_obs[:, 0:4]  # (p, v) as observed
-        command = dynamics.command_vector(action, state.discrete_actions,
-                                          state.discrete_action_set)
-        # phi(x) once, for the prediction and for the model's statistics.
-        features = dynamics.polynomial_features(
-            dynamics.model_inputs(own_state, command), config.degree
-        )
-        predicted = jnp.einsum("npe,pk->nke", features, state.coefficients)  # y_hat
-        targets = dynamics.model_targets(own_state, next_own_state)  # y = (dp, v_{t+1})
-        # s_hat - s = (p_t + dp_hat - p_{t+1}, v_hat - v_{t+1}) = y_hat - y, so the score
-        # |s_hat - s|^2 is computed on the model's targets.
-        raw_score = emergency_score(predicted, targets)
-        transitions = jax.lax.dynamic_update_index_in_dim(
-            episode.transitions,
-            jnp.concatenate([features, targets, raw_score[:, None]], axis=1),
-            jnp.minimum(episode.window.count, state.episode_length - 1),
-            axis=0,
-        )
+        if self.detector == "model":
+            raw_score, transitions = self._model_score(state, episode, own_state,
+                                                       next_own_state, action)
+        else:  # a perfect detector: the environment's own danger flags (1.0 or 0.0)
+            raw_score, transitions = next_env_state.metrics["danger"], None
         window = push_score(episode.window, raw_score)
         next_score = smoothed_score(window)
         # What the robots observe of each other (distances, directions) gives the pairs.
         displacement = next_own_state[:, 0:2] - own_state[:, 0:2]
-        reward_in = intrinsic_reward_from_observation(
-            episode.score, obs, displacement, config.comm_range, state.params["lam"]
-        )
+        if self.intrinsic:
+            reward_in = intrinsic_reward_from_observation(
+                episode.score, obs, displacement, config.comm_range, state.params["lam"]
+            )
+            reward = next_env_state.reward + reward_in
+        else:
+            reward_in, reward = jnp.zeros_like(next_score), next_env_state.reward
         shared = shared_scores_from_observation(next_score, next_obs, config.comm_range)
+        if self.scores_in_obs:
+            next_obs = jnp.concatenate([next_obs, shared.astype(next_obs.dtype)], axis=1)
         ccr_state = jnp.where(
             next_score > config.sensing_threshold,
             SENSING_DANGER,
@@ -250,18 +267,41 @@ class CCR:
             "intrinsic_reward": reward_in,
             "ccr_state": ccr_state,
         }
-        return (
-            episode_state,
-            jnp.concatenate([next_obs, shared.astype(next_obs.dtype)], axis=1),
-            next_env_state.reward + reward_in,
-            info,
+        return episode_state, next_obs, reward, info
+
+    def _model_score(
+        self, state: CCRState, episode: EpisodeArrays, own_state: jax.Array,
+        next_own_state: jax.Array, action: jax.Array,
+    ) -> tuple[jax.Array, jax.Array]:
+        """Steps 1-2: the raw score ``|s_hat_{t+1} - s_{t+1}|^2`` of the model's prediction
+        (paper, "Emergency Score Assessment") and the episode's transitions with this one
+        kept for the model's statistics."""
+        command = dynamics.command_vector(action, state.discrete_actions,
+                                          state.discrete_action_set)
+        # phi(x) once, for the prediction and for the model's statistics.
+        features = dynamics.polynomial_features(
+            dynamics.model_inputs(own_state, command), self.config.degree
         )
+        predicted = jnp.einsum("npe,pk->nke", features, state.coefficients)  # y_hat
+        targets = dynamics.model_targets(own_state, next_own_state)  # y = (dp, v_{t+1})
+        # s_hat - s = (p_t + dp_hat - p_{t+1}, v_hat - v_{t+1}) = y_hat - y, so the score
+        # |s_hat - s|^2 is computed on the model's targets.
+        raw_score = emergency_score(predicted, targets)
+        transitions = jax.lax.dynamic_update_index_in_dim(
+            episode.transitions,
+            jnp.concatenate([features, targets, raw_score[:, None]], axis=1),
+            jnp.minimum(episode.window.count, state.episode_length - 1),
+            axis=0,
+        )
+        return raw_score, transitions
 
     def end_episode(self, episode_state: CCREpisodeState) -> CCRState:
         """Adds the episode's transitions to the model's statistics (robust weights under the
         episode's coefficients) and drops the per-episode arrays: what remains (model,
-        params) is independent of ``E``."""
+        params) is independent of ``E``. Without a model there is nothing to add."""
         state, episode = episode_state.between, episode_state.episode
+        if self.detector != "model":
+            return state
         transitions = episode.transitions  # [T, N, P + 5, E]
         steps, num_robots, rows, num_envs = transitions.shape
         p = rows - dynamics.NUM_OUTPUTS - 1
