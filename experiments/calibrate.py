@@ -2,6 +2,7 @@
 
     python experiments/calibrate.py                         # 1024 episodes per row
     python experiments/calibrate.py --episodes 64 --out /tmp/c   # small, for the tests
+    python experiments/calibrate.py --regimes --out /tmp/r  # the information regimes
 
 The paper publishes no sizes, only its plain learners' danger and success (Tables I
 and II). ccrjax chooses the scenario parameters so that the hazard-blind go-to-goal
@@ -30,6 +31,10 @@ It prints, and writes to ``<out>/calibration.md`` and ``calibration.json``:
    the set MAAC uses) and the go-to-goal and oracle snapped to the MPE's five (none, -x,
    +x, -y, +y), whose force lies in the unit L1 ball where the continuous force fills the
    box ``[-1, 1]^2``: the table that shows why MAAC uses ``box9``.
+
+``--regimes`` measures instead what the team's information is worth, over a grid of the
+hazard's placement and the team's formation (``experiments/regimes.py`` says what and
+why), and writes ``<out>/regimes.md`` and ``regimes.json``.
 """
 
 from __future__ import annotations
@@ -50,6 +55,7 @@ from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import regimes  # noqa: E402
 from ledger import add_out_options, prepare_out  # noqa: E402
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
 
@@ -73,6 +79,8 @@ PAPER_LEARNERS = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 # The discrete action sets measured, and the controllers measured with each: MAAC's set
 # (box9) meets every band the continuous actions do; the MPE's five only shows its cost.
 ACTION_SET_CONTROLLERS = {"box9": None, "mpe5": ("go_to_goal", "oracle")}  # None: all
+REGIMES_SELECT = 128  # --regimes: selection episodes per memoriser height
+REGIMES_MEASURED = "217 s"  # the full grid's time in --help (measured at 443c89a + this mode)
 
 
 def measure(scenario: str, controller: str, episodes: int, seed: int,
@@ -207,14 +215,72 @@ def build_parser() -> argparse.ArgumentParser:
                         help="skip the trade-off tables around the defaults")
     parser.add_argument("--no-action-sets", action="store_true",
                         help="skip the discrete action sets' table and bands")
+    regime = parser.add_argument_group(
+        "information regimes (--regimes)",
+        "hidden obstacle, turbulence, strong wind x hazard placement x formation: the five "
+        "rows go_to_goal, self_reactive, team_informed, oracle, memoriser, go-to-goal's "
+        "forewarned share and the 'informative' flag (experiments/regimes.py). The full grid "
+        f"(27 regimes, 1024 episodes per row, {REGIMES_SELECT} selection episodes per "
+        f"height) took {REGIMES_MEASURED} on a 2-core CPU.")
+    regime.add_argument("--regimes", action="store_true",
+                        help="measure the information regimes instead of the calibration")
+    regime.add_argument("--selection-seed", type=cli.seed_int, default=1,
+                        help="seed of the episodes that choose the memoriser's height; must "
+                             "differ from --seed (default 1)")
+    regime.add_argument("--select-episodes", type=cli.int_in(1, 65536),
+                        default=REGIMES_SELECT,
+                        help=f"episodes per height of that choice (default {REGIMES_SELECT})")
+    regime.add_argument("--scenarios", nargs="+", choices=regimes.REGIME_SCENARIOS,
+                        default=list(regimes.REGIME_SCENARIOS),
+                        help="scenarios of the grid (default: all three)")
+    regime.add_argument("--placements", nargs="+", type=cli.float_in(0.0),
+                        default=list(regimes.PLACEMENTS),
+                        help="half-ranges h of the hazard's height [-h, h] (default "
+                             f"{' '.join(f'{h:g}' for h in regimes.PLACEMENTS)})")
+    regime.add_argument("--spacings", nargs="+", type=cli.float_in(0.0),
+                        default=[spacing or 0.0 for _, spacing in regimes.FORMATIONS],
+                        help="formations: 0 for abreast, else a column with this spacing "
+                             "(default 0 0.3 0.6)")
     add_out_options(parser, "calibration", Path("runs/calibration"))
     return parser
+
+
+def main_regimes(args: argparse.Namespace, argv: list[str] | None) -> int:
+    """``--regimes``: measures the grid and writes ``regimes.md`` and ``regimes.json``."""
+    commit = git_commit()  # the code that measures is the code loaded now
+    start = time.time()
+    formations = [("abreast", None) if spacing == 0 else ("column", spacing)
+                  for spacing in args.spacings]
+    grid = regimes.measure_grid(
+        args.episodes, args.seed, args.selection_seed, args.select_episodes,
+        length_episodes=args.episodes, scenarios=tuple(args.scenarios),
+        placements=tuple(args.placements), formations=formations,
+        log=lambda line: print(line, file=sys.stderr, flush=True))
+    result = {
+        "episodes": args.episodes, "seed": args.seed, "selection_seed": args.selection_seed,
+        "select_episodes": args.select_episodes, "grid": grid, "commit": commit,
+        "command": " ".join([PROG, *(argv or sys.argv[1:])]),
+        "seconds": time.time() - start,
+    }
+    text = regimes.markdown(result)
+    write_atomic(args.out / "regimes.json", json.dumps(result, indent=1))
+    write_atomic(args.out / "regimes.md", text)
+    print(text)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.regimes and (args.no_sweeps or args.no_action_sets):
+        cli.fail(PROG, "--no-sweeps and --no-action-sets apply to the calibration, not "
+                       "to --regimes")
+    if args.regimes and args.selection_seed == args.seed:
+        cli.fail(PROG, f"--selection-seed must differ from --seed ({args.seed}): the "
+                       "memoriser's height is chosen on other episodes than it is measured on")
     prepare_out(PROG, args.out, args.force)
+    if args.regimes:
+        return main_regimes(args, argv)
     commit = git_commit()  # the code that measures is the code loaded now
     start = time.time()
     rows = {s: {c: measure(s, c, args.episodes, args.seed) for c in CONTROLLERS}

@@ -16,23 +16,30 @@ pessimistic baseline) and the rows that bound what a learner can reach:
   hazard" success rule it scored 100% success and 0% danger).
 
 Every controller is ``(world, key) -> action float32[N, 2, B]`` (continuous
-actions) and runs through :func:`ccrjax.training.acting.run_episode`, the loop and metrics
-that evaluate the learners. In an environment with discrete actions (MAAC's), each
-command is snapped to the nearest action of the environment's set
-(:func:`snap_to_action_set`): what the same controller can do with those actions.
+actions), or a :class:`ccrjax.training.acting.StatefulController` when it needs memory
+across steps (``self_reactive`` and ``team_informed`` of ``information_controllers.py``,
+which :func:`evaluate_controller` runs too, with its ``memoriser``), and runs through
+:func:`ccrjax.training.acting.run_episode`, the loop and metrics that evaluate the learners.
+In an environment with discrete actions (MAAC's), each command is snapped to the nearest
+action of the environment's set (:func:`snap_to_action_set`): what the same controller can
+do with those actions.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
 from ccrjax.envs.env import CCREnv, WorldState
 from ccrjax.envs.world import DISCRETE_ACTION_SETS
-from ccrjax.training.acting import episode_metrics, run_episode
+from ccrjax.training.acting import StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # information_controllers
 
 # The PD gains: about the fastest arrival from 3 units away (19 steps) with an overshoot
 # of 0.02 under the MPE's damping 0.25 and sensitivity 5 (v' = 0.75 v + 0.5 u per step).
@@ -201,25 +208,41 @@ CONTROLLERS: dict[str, Callable[[CCREnv], Controller]] = {
 GAMING = ("stand_still", "flee_sideways", "overshoot", "dash_away")
 
 
-def snap_to_action_set(controller: Controller, action_set: str) -> Controller:
+def snap_to_action_set(controller: Controller | StatefulController, action_set: str
+                       ) -> Controller | StatefulController:
     """``controller`` with each command replaced by the nearest (Euclidean; ties to the
     lower index) action of the discrete ``action_set``: ``int32[N, B]`` actions."""
     directions = jnp.asarray(DISCRETE_ACTION_SETS[action_set])  # [A, 2]
 
-    def act(world: WorldState, key: jax.Array) -> jax.Array:
-        command = controller(world, key)  # [N, 2, B]
+    def snap(command: jax.Array) -> jax.Array:  # [N, 2, B] -> [N, B]
         gap = command[:, None] - directions[None, :, :, None]  # [N, A, 2, B]
         return jnp.argmin(jnp.sum(gap * gap, axis=2), axis=1).astype(jnp.int32)
+
+    if isinstance(controller, StatefulController):
+        def remember(world: WorldState, memory, key: jax.Array):
+            command, memory = controller.act(world, memory, key)
+            return snap(command), memory
+
+        return StatefulController(init=controller.init, act=remember)
+
+    def act(world: WorldState, key: jax.Array) -> jax.Array:
+        return snap(controller(world, key))
 
     return act
 
 
-def evaluate_controller(env: CCREnv, name: str, key: jax.Array) -> dict[str, jax.Array]:
+def evaluate_controller(env: CCREnv, name: str, key: jax.Array, **params
+                        ) -> dict[str, jax.Array]:
     """The learners' evaluation metrics of controller ``name`` over ``env.num_envs`` episodes
-    (snapped to the environment's discrete actions if it has them)."""
-    if name not in CONTROLLERS:
-        raise ValueError(f"controller must be one of {sorted(CONTROLLERS)}, got {name!r}")
-    controller = CONTROLLERS[name](env)
+    (snapped to the environment's discrete actions if it has them): one of
+    :data:`CONTROLLERS` or of ``information_controllers.INFORMATION_CONTROLLERS``, built
+    with ``params`` (the memoriser needs its height ``y_w``)."""
+    from information_controllers import INFORMATION_CONTROLLERS  # it imports this module
+
+    known = {**CONTROLLERS, **INFORMATION_CONTROLLERS}
+    if name not in known:
+        raise ValueError(f"controller must be one of {sorted(known)}, got {name!r}")
+    controller = known[name](env, **params)
     if env.discrete_actions:
         controller = snap_to_action_set(controller, env.discrete_action_set)
     transform = Plain()

@@ -9,7 +9,7 @@ always come from the environment itself, never from a transformed reward.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +60,18 @@ ActFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs [E, N, F], key) -> a
 ControllerFn = Callable[[WorldState, jax.Array], jax.Array]
 
 
+class StatefulController(NamedTuple):
+    """A hand-written controller with memory across the steps of an episode.
+
+    ``init(world) -> memory`` (any pytree) at the episode's start; ``act(world, memory,
+    key) -> (env action, memory)`` every step; :func:`run_episode` carries the memory
+    in its scan. Controllers without memory stay plain ``(world, key) -> action``.
+    """
+
+    init: Callable[[WorldState], Any]
+    act: Callable[[WorldState, Any, jax.Array], tuple[jax.Array, Any]]
+
+
 def run_episode(
     env: CCREnv,
     transform: Transform,
@@ -68,27 +80,34 @@ def run_episode(
     discrete: bool,
     key: jax.Array,
     *,
-    controller: ControllerFn | None = None,
+    controller: ControllerFn | StatefulController | None = None,
 ) -> tuple[Any, Episode]:
     """Resets ``env`` and runs ``env.episode_length`` steps of ``act``, through ``transform``.
 
     ``controller``, if given, acts instead of ``act``: a hand-written policy that
     reads the environment's state (the reference controllers of ``experiments/``),
-    evaluated by the very same loop and metrics as the learners.
+    evaluated by the very same loop and metrics as the learners; a
+    :class:`StatefulController` has its memory carried from step to step.
     """
     if (act is None) == (controller is None):
         raise ValueError("run_episode needs exactly one of act and controller")
     reset_key, key = jax.random.split(key)
     env_state = env.reset(reset_key)
     transform_state, obs = transform.start_episode(transform_state, env_state)
+    stateful = isinstance(controller, StatefulController)
+    # An empty tuple adds no leaf to the scan's carry: act's path is the same program.
+    memory = controller.init(env_state.pipeline_state) if stateful else ()
 
     def one_step(carry, step_key):
-        env_state, transform_state, obs = carry
+        env_state, transform_state, obs, memory = carry
         obs_bm = to_batch_major_obs(obs)
         if controller is None:
             action = act(obs_bm, step_key)
         else:
-            env_action = controller(env_state.pipeline_state, step_key)
+            if stateful:
+                env_action, memory = controller.act(env_state.pipeline_state, memory, step_key)
+            else:
+                env_action = controller(env_state.pipeline_state, step_key)
             action = env_action.T if discrete else jnp.transpose(env_action, (2, 0, 1))
         next_env_state = env.transition(env_state, to_env_action(action, discrete))
         transform_state, next_obs, reward, info = transform.step(
@@ -111,11 +130,11 @@ def run_episode(
             next_env_state.pipeline_state.position,
             info,
         )
-        return (next_env_state, transform_state, next_obs), outputs
+        return (next_env_state, transform_state, next_obs, memory), outputs
 
     step_keys = jax.random.split(key, env.episode_length)
-    (_, transform_state, _), outputs = jax.lax.scan(
-        one_step, (env_state, transform_state, obs), step_keys
+    (_, transform_state, _, _), outputs = jax.lax.scan(
+        one_step, (env_state, transform_state, obs, memory), step_keys
     )
     transform_state = transform.end_episode(transform_state)
     transitions, env_reward, danger, success, target_distance, hazard_distance, position, info = (
