@@ -77,7 +77,8 @@ from reference_controllers import go_to_goal, oracle  # noqa: E402
 
 REGIME_SCENARIOS = ("hidden_obstacle", "turbulence", "strong_wind")
 PLACEMENTS = (0.25, 0.5, 1.0)  # half-ranges h of the hazard centre's height, [-h, h]
-FORMATIONS = (("abreast", None), ("column", 0.3), ("column", 0.6))  # (formation, spacing)
+FORMATIONS = (("abreast", None), ("column", 0.3), ("column", 0.45), ("column", 0.6),
+              ("column", 0.9))  # (formation, spacing); 0.9: the follower just in CCR's range
 ROWS = ("go_to_goal", "self_reactive", "team_informed", "oracle", "memoriser")
 NUM_ROBOTS = 5
 
