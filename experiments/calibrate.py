@@ -56,7 +56,7 @@ from ccrjax.run.paper import PAPER
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import regimes  # noqa: E402
-from ledger import add_out_options, prepare_out  # noqa: E402
+from ledger import add_out_options, device_name, prepare_out  # noqa: E402
 from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
 
 PROG = "python experiments/calibrate.py"
@@ -259,7 +259,7 @@ def main_regimes(args: argparse.Namespace, argv: list[str] | None) -> int:
     result = {
         "episodes": args.episodes, "seed": args.seed, "selection_seed": args.selection_seed,
         "select_episodes": args.select_episodes, "grid": grid, "commit": commit,
-        "command": " ".join([PROG, *(argv or sys.argv[1:])]),
+        "device": device_name(), "command": " ".join([PROG, *(argv or sys.argv[1:])]),
         "seconds": time.time() - start,
     }
     text = regimes.markdown(result)

@@ -315,6 +315,7 @@ def markdown(result: dict[str, Any]) -> str:
     for entry in grid["refused"]:
         lines.append(f"Refused: {entry['scenario']}, h {entry['placement']:g}, "
                      f"{entry['formation']}: {entry['reason']}")
-    lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}` "
+    device = f" on {result['device']}" if result.get("device") else ""
+    lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}`{device} "
               f"in {result['seconds']:.0f} s."]
     return "\n".join(lines) + "\n"
