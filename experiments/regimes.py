@@ -203,13 +203,53 @@ def informative(rows: dict[str, dict[str, float]]) -> dict[str, bool]:
     """The issue's two conditions and their conjunction (thresholds: module constants)."""
     own, team = rows["self_reactive"], rows["team_informed"]
     known, memorised = rows["oracle"], rows["memoriser"]
-    equal = abs(team["success_rate"] - own["success_rate"]) <= EQUAL_SUCCESS + 1e-9
-    halved = team["danger_frequency"] <= INFORMED_DANGER_RATIO * own["danger_frequency"] + 1e-9
+    equal = equal_success(rows)
+    # Nothing to halve where self_reactive is never in danger.
+    halved = own["danger_frequency"] > 0 and (
+        team["danger_frequency"] <= INFORMED_DANGER_RATIO * own["danger_frequency"] + 1e-9)
     worse = (memorised["danger_frequency"] >= known["danger_frequency"] + MEMORISER_MARGIN - 1e-9
              and memorised["danger_frequency"]
              >= MEMORISER_RATIO * known["danger_frequency"] - 1e-9)
     return {"team_halves_danger": bool(equal and halved), "memoriser_clearly_worse": bool(worse),
             "informative": bool(equal and halved and worse)}
+
+
+def danger_ratio(regime: dict[str, Any]) -> float:
+    """team_informed's danger over self_reactive's (inf where self_reactive is never in
+    danger): how much of its own danger a teammate's trouble spares a robot."""
+    own = regime["rows"]["self_reactive"]["danger_frequency"]
+    team = regime["rows"]["team_informed"]["danger_frequency"]
+    return team / own if own > 0 else math.inf
+
+
+def choose_regimes(regimes: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per scenario, the regime the study uses: an informative one (the lowest
+    :func:`danger_ratio` among them), else the **closest**: the lowest ratio among the
+    regimes whose successes are equal and whose memoriser is clearly worse than the oracle
+    (both conditions of :func:`informative` but the halving), else among all. Ties go to the
+    earlier regime of the grid (narrower placement, abreast, shorter spacing)."""
+    chosen = {}
+    for scenario in dict.fromkeys(r["scenario"] for r in regimes):
+        own = [r for r in regimes if r["scenario"] == scenario]
+        pools = ([r for r in own if r["informative"]],
+                 [r for r in own if r["memoriser_clearly_worse"] and equal_success(r["rows"])],
+                 own)
+        pool = next(p for p in pools if p)
+        best = min(pool, key=danger_ratio)
+        chosen[scenario] = {
+            "placement": best["placement"], "formation": best["formation"],
+            "column_spacing": best["column_spacing"],
+            "arena_half_extent": best["arena_half_extent"],
+            "episode_length": best["episode_length"], "danger_ratio": danger_ratio(best),
+            "informative": best["informative"],
+        }
+    return chosen
+
+
+def equal_success(rows: dict[str, dict[str, float]]) -> bool:
+    """team_informed's and self_reactive's successes within ``EQUAL_SUCCESS``."""
+    return abs(rows["team_informed"]["success_rate"]
+               - rows["self_reactive"]["success_rate"]) <= EQUAL_SUCCESS + 1e-9
 
 
 def measure_regime(scenario: str, layout: Layout, episode_length: int, episodes: int,
@@ -315,6 +355,18 @@ def markdown(result: dict[str, Any]) -> str:
     for entry in grid["refused"]:
         lines.append(f"Refused: {entry['scenario']}, h {entry['placement']:g}, "
                      f"{entry['formation']}: {entry['reason']}")
+    lines += ["", "**The regime per scenario** (`choose_regimes`: an informative one, else the "
+              "closest: the lowest team_informed / self_reactive danger ratio among regimes "
+              "with equal successes and a memoriser clearly worse than the oracle):", ""]
+    for scenario, regime in choose_regimes(grid["regimes"]).items():
+        formation = regime["formation"] + (
+            f" {regime['column_spacing']:g}" if regime["column_spacing"] else "")
+        lines.append(
+            f"- {scenario}: h {regime['placement']:g}, {formation}, T "
+            f"{regime['episode_length']}, arena half extent "
+            f"{', '.join(f'{v:g}' for v in regime['arena_half_extent'])}: danger ratio "
+            f"{regime['danger_ratio']:.2f}, "
+            + ("informative" if regime["informative"] else "**not informative** (the closest)"))
     device = f" on {result['device']}" if result.get("device") else ""
     lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}`{device} "
               f"in {result['seconds']:.0f} s."]
