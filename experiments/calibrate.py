@@ -49,7 +49,7 @@ from typing import Any
 import jax
 
 from ccrjax import cli
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import ROBOT_RADIUS, CCREnv
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.paper import PAPER
@@ -278,6 +278,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.regimes and args.selection_seed == args.seed:
         cli.fail(PROG, f"--selection-seed must differ from --seed ({args.seed}): the "
                        "memoriser's height is chosen on other episodes than it is measured on")
+    if args.regimes:
+        for spacing in args.spacings:  # a formation no scenario could run: refused at once
+            if spacing:
+                try:
+                    regimes.regime_layout(0.0, "column", spacing).check_team(
+                        regimes.NUM_ROBOTS, ROBOT_RADIUS)
+                except ValueError as error:
+                    cli.fail(PROG, f"--spacings {spacing:g}: {error}")
     prepare_out(PROG, args.out, args.force)
     if args.regimes:
         return main_regimes(args, argv)

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from ccrjax.agents.types import Transition
 from ccrjax.envs.env import CCREnv, WorldState
 from ccrjax.envs.scenarios import Hazard, Layout
-from ccrjax.envs.scenarios.base import target_positions
+from ccrjax.envs.scenarios.layout import target_positions
 from ccrjax.envs.world import rectangle_distance
 from ccrjax.training.acting import Episode, episode_metrics
 

@@ -204,6 +204,7 @@ def test_go_round_with_the_true_hazard_is_the_oracle(info, reference, scenario):
                                np.asarray(reference.oracle(env)(world, None)), atol=1e-6)
 
 
+@pytest.mark.slow  # whole episodes of several controllers: make test-slow
 def test_team_informed_is_no_less_safe_than_go_to_goal_on_the_obstacle(info, reference):
     rows = blocks_metrics(info, lambda b: CCREnv("hidden_obstacle", num_envs=b), {
         "go_to_goal": reference.go_to_goal, "team_informed": info.team_informed,
@@ -212,6 +213,7 @@ def test_team_informed_is_no_less_safe_than_go_to_goal_on_the_obstacle(info, ref
     assert rows["self_reactive"]["danger_frequency"] < rows["go_to_goal"]["danger_frequency"]
 
 
+@pytest.mark.slow  # whole episodes of several controllers: make test-slow
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_gaming_policies_fail_in_the_new_regimes(info, reference, scenario):
     """A column 0.6 apart (the longest of the grid, 40 steps) and the widest placement."""
@@ -311,6 +313,7 @@ def test_run_episode_carries_a_stateful_controllers_memory():
     assert np.all(x[4] > x[3])
 
 
+@pytest.mark.slow  # whole episodes of several controllers: make test-slow
 def test_evaluate_controller_runs_the_information_controllers(reference):
     """By name, with parameters, snapped to discrete actions (memory and all)."""
     env = CCREnv("hidden_obstacle", num_envs=4, discrete_actions=True)

@@ -13,7 +13,13 @@ import pytest
 from ccrjax import train
 from ccrjax.envs.env import CCREnv
 from ccrjax.envs.scenarios import Layout
-from ccrjax.envs.scenarios.base import column_positions, sample_centre, steps_to_cover
+from ccrjax.envs.scenarios.layout import (
+    abreast_positions,
+    column_positions,
+    sample_centre,
+    start_positions,
+    steps_to_cover,
+)
 from ccrjax.training import TrainConfig
 from ccrjax.training.config import config_from_dict, config_to_dict, make_env
 from tests.test_train_command import assert_usage_error, run_main
@@ -35,10 +41,10 @@ def test_a_column_starts_one_robot_behind_another_at_the_spacing():
 def test_the_abreast_default_draws_what_it_drew_before_the_column_existed():
     # Layout() and an explicit abreast layout with other column numbers start the same.
     key = jax.random.PRNGKey(3)
-    a = CCREnv("turbulence", num_envs=4).reset(key).pipeline_state
-    b = CCREnv("turbulence", num_envs=4,
-               layout=Layout(column_spacing=0.9, column_lateral=0.2)).reset(key).pipeline_state
-    np.testing.assert_array_equal(a.position, b.position)
+    a = start_positions(key, Layout(), 5, 4)
+    b = start_positions(key, Layout(column_spacing=0.9, column_lateral=0.2), 5, 4)
+    np.testing.assert_array_equal(a, abreast_positions(key, Layout(), 5, 4))
+    np.testing.assert_array_equal(a, b)
     assert "formation" not in Layout().record() and Layout(formation="column").record()[
         "formation"] == "column"
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import calibrate
 import regimes
+
+from tests.test_train_command import assert_usage_error, run_main
 
 
 def regime(scenario, spacing, own, team, own_success=0.9, team_success=0.9, memoriser=0.1,
@@ -42,3 +45,10 @@ def test_without_one_the_closest_keeps_the_other_conditions():
 def test_a_regime_whose_self_reactive_robots_never_meet_danger_is_never_the_closest():
     grid = [regime("c", 0.3, own=0.0, team=0.0), regime("c", 0.6, own=0.2, team=0.18)]
     assert regimes.choose_regimes(grid)["c"]["column_spacing"] == 0.6
+
+
+def test_calibrate_refuses_a_column_no_scenario_can_run_in_one_line(capsys, tmp_path):
+    status, _, err = run_main(calibrate, ["--regimes", "--spacings", "0.1", "--out",
+                                          tmp_path / "r"], capsys)
+    assert_usage_error(status, err, "--spacings 0.1", "at least min_separation")
+    assert not (tmp_path / "r").exists()

@@ -26,7 +26,7 @@ from ccrjax.envs.scenarios import (
     Turbulence,
     make_scenario,
 )
-from ccrjax.envs.scenarios.base import in_target_area
+from ccrjax.envs.scenarios.layout import in_target_area
 from ccrjax.envs.world import PhysicsParams, action_to_force, physics_step, rectangle_distance
 
 PHYSICS = PhysicsParams()

@@ -54,9 +54,9 @@ from flax import struct
 
 from ccrjax.checks import check_choice, check_int, check_number
 from ccrjax.envs.scenarios import SCENARIOS, Hazard, Layout, Scenario, make_scenario
-from ccrjax.envs.scenarios.base import (
+from ccrjax.envs.scenarios.base import distance_to_centre
+from ccrjax.envs.scenarios.layout import (
     distance_to,
-    distance_to_centre,
     in_target_area,
     start_positions,
     target_positions,

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ccrjax.envs.scenarios.base import Hazard, Layout, Scenario
+from ccrjax.envs.scenarios.base import Hazard, Scenario
 from ccrjax.envs.scenarios.hidden_obstacle import HiddenObstacle
+from ccrjax.envs.scenarios.layout import Layout
 from ccrjax.envs.scenarios.nominal import Nominal
 from ccrjax.envs.scenarios.strong_wind import StrongWind
 from ccrjax.envs.scenarios.turbulence import Turbulence

@@ -26,12 +26,8 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax.checks import check_number, check_range
-from ccrjax.envs.scenarios.base import (
-    Hazard,
-    Layout,
-    Scenario,
-    sample_centre,
-)
+from ccrjax.envs.scenarios.base import Hazard, Scenario
+from ccrjax.envs.scenarios.layout import Layout, sample_centre
 from ccrjax.envs.world import rectangle_stop
 
 

@@ -12,7 +12,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ccrjax.envs.scenarios.base import Hazard, Layout, Scenario, sample_centre
+from ccrjax.envs.scenarios.base import Hazard, Scenario
+from ccrjax.envs.scenarios.layout import Layout, sample_centre
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,13 +20,8 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax.checks import check_number, check_range
-from ccrjax.envs.scenarios.base import (
-    Hazard,
-    Layout,
-    Scenario,
-    area_features,
-    sample_centre,
-)
+from ccrjax.envs.scenarios.base import Hazard, Scenario, area_features
+from ccrjax.envs.scenarios.layout import Layout, sample_centre
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,14 +23,13 @@ import jax.numpy as jnp
 from ccrjax.checks import check_number, check_range
 from ccrjax.envs.scenarios.base import (
     Hazard,
-    Layout,
     Scenario,
     area_features,
     distance_to_centre,
     hashed_bits,
-    sample_centre,
     unit_vector,
 )
+from ccrjax.envs.scenarios.layout import Layout, sample_centre
 
 
 @dataclasses.dataclass(frozen=True)
