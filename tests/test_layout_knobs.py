@@ -124,6 +124,16 @@ def test_bad_knobs_are_refused_naming_the_parameter(make, fragment):
     assert fragment in str(error.value)
 
 
+def test_a_hazard_behind_the_start_box_is_refused_only_where_a_column_starts():
+    # A short obstacle drawn behind the start box: clear of the box, in the column's way.
+    behind = {"hazard_x_range": (-2.2, -2.1)}
+    short = {"length_range": (0.2, 0.3)}
+    CCREnv("hidden_obstacle", scenario_params=short, layout=Layout(**behind))
+    with pytest.raises(ValueError, match="overlapping the column's start region"):
+        CCREnv("hidden_obstacle", scenario_params=short,
+               layout=Layout(formation="column", **behind))
+
+
 def test_steps_to_cover_is_the_full_speed_arrival_time():
     # v: 0, 0.5, 0.875, ... -> 2; the first step moves nothing (position before velocity).
     assert steps_to_cover(0.0) == 0
