@@ -44,7 +44,7 @@ def seed_overlap(seeds: Sequence[int], offset: int, against: Sequence[str]) -> s
 # strong wind; MAAC's (box9, 1 x 256, this CPU, 2026-11-25) on the obstacle, still creeping up in
 # turbulence and the wind (docs/protocol.md says how its check was read).
 # Every table cell records whether its plain learner's return plateaued at this budget on
-# the tables' seeds, and the README says where it did not.
+# the tables' seeds, and the results report (experiments/results/README.md) says where it did not.
 BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 # The longer budget (docs/protocol.md, amendments of 2026-11-26 and 2026-11-27): the
 # longer-budget check's rule, on the plain learners alone, gave 6M steps for every learner.
