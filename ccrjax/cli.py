@@ -244,14 +244,20 @@ non_negative_float = float_in(0.0)
 seed_int = int_in(0, 2**31 - 1)
 
 
+def _split(text: str, kind: type, example: str) -> tuple[Any, ...]:
+    """``text`` split at commas, each part converted by ``kind`` (``int`` or ``float``)."""
+    try:
+        return tuple(kind(part) for part in text.split(","))
+    except ValueError:
+        words = "integers" if kind is int else "numbers"
+        raise argparse.ArgumentTypeError(
+            f"must be comma-separated {words} such as {example}, got {text!r}"
+        ) from None
+
+
 def int_tuple(text: str) -> tuple[int, ...]:
     """``"64,64"`` to ``(64, 64)``: layer widths, each an integer > 0."""
-    try:
-        values = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"must be comma-separated integers such as 64,64, got {text!r}"
-        ) from None
+    values = _split(text, int, "64,64")
     if not values or any(v <= 0 for v in values):
         raise argparse.ArgumentTypeError(f"must be integers > 0, got {text!r}")
     return values
@@ -260,12 +266,7 @@ def int_tuple(text: str) -> tuple[int, ...]:
 def float_tuple(text: str) -> tuple[float, ...]:
     """``"-1,1"`` to ``(-1.0, 1.0)``: finite numbers (a value starting with ``-`` is given
     as ``--option=-1,1``). The dataclass the numbers go to checks their meaning."""
-    try:
-        values = tuple(float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"must be comma-separated numbers such as -1,1, got {text!r}"
-        ) from None
+    values = _split(text, float, "-1,1")
     if not values or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
     return values

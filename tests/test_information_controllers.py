@@ -10,10 +10,7 @@ behaviour; the regimes run once at a tiny size.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -24,17 +21,9 @@ from ccrjax.envs.env import CCREnv
 from ccrjax.envs.scenarios import Layout
 from ccrjax.training.acting import Episode, StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
+from tests.test_reference_controllers import load_script
 
-EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle")
-
-
-def load_script(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_script", EXPERIMENTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
