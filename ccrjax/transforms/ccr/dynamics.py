@@ -47,16 +47,11 @@ towards themselves and stay visible as large errors. Before the first fit
 (coefficients zero) ``e = |y|^2`` and every transition still counts with a
 positive weight. The model never reads the simulator's hazard code or constants.
 
-Cost (measured once on the 2-core development CPU, shared, jax 0.10.2, with a
-script not kept in the repository): inside a compiled program the fit for
-``P = 15`` (scaling plus a ``15 x 15`` Cholesky solve with 4 right-hand sides) takes
-about 3 microseconds, once per episode (45 microseconds as a standalone jitted
-call, mostly dispatch; about 50 microseconds in-graph at degree 5, ``P = 126``).
-One optax Adam step on the same quadratic loss costs about 4 microseconds at
-``P = 15``, and would need many steps per fit and a learning rate, and never be
-exact; the closed form is exact for the accumulated statistics and has no
-learning rate. The per-step cost is :func:`accumulate`, about 5 microseconds per
-environment step at ``N = 5``, ``E = 8``.
+Why a closed form: it is exact for the accumulated statistics and has no learning
+rate, where a gradient method would need many steps per fit and a learning rate, and
+never be exact. The fit is a ``P x P``
+Cholesky solve with 4 right-hand sides, once per episode; the per-step cost is
+:func:`accumulate`'s.
 """
 
 from __future__ import annotations

@@ -90,22 +90,15 @@ class CCRConfig:
     comm_range: float = 1.0  # robots share scores within this distance
     degree: int = 2  # degree of the polynomial dynamics model
     ridge: float = 1e-4  # ridge term of the model's least-squares fit
-    # [-1, 1]^2 with +0.6 added to u_x so that robots reach the hazard, clipped; the model
-    # fitted on 6 episodes of the scenario's own transitions, measured on a seventh).
-    # Raw score per robot-step, safe steps (all four scenarios): median 2e-7, q90 2e-6,
-    # q99 0.2-1.6 (robot-robot contacts, ~1-2% of steps); danger steps: turbulence
-    # median 0.17 (mean 0.29), strong wind 0.16 (= (4 * 0.1)^2, mean 0.14), obstacle
-    # contact 0.6 (mean 1.9); their q10 is ~2e-7 (the step a robot enters, before the
-    # hazard has acted). Tolerance 1e-5 or 1e-2 instead of 1e-3 gave 2-30x larger
-    # nominal errors (too few full-weight transitions early; wind bending the model).
+    # Squared prediction error of full weight in the robust fit: well above quiet nominal
+    # motion (about 2e-7 a step) and below a hazard's push (0.1 and more), so transitions
+    # the hazards disturb barely bend the model.
     tolerance: float = 1e-3  # squared error of full weight in the robust fit
-    # robots in danger: median 0.1-0.17, q25 0.03-0.04 (turbulence, wind); of safe robots
-    # median 2e-7 (q90 0.005-0.05 from recent contacts). 1e-2 lies below a single wind
-    # push averaged over the window (0.16 / 5) and ~5 orders above quiet nominal motion;
-    # 80-86% of hazard robot-steps in turbulence and wind are then "sensing".
+    # Below one wind push averaged over the window (0.16 / 5), orders of magnitude above
+    # nominal motion: most robot-steps inside turbulence or wind count as sensing.
     sensing_threshold: float = 1e-2  # own smoothed score of 'sensing danger'
-    # with no in-range neighbour above the sensing threshold: median 2e-7, q99 0.015-0.019;
-    # robots with such a neighbour: q10 0.01-0.03, median 0.09-0.44.
+    # Above the |R_in| of robots with no teammate in range above the sensing threshold, for
+    # lam = 30 (the pictures' colours only).
     activation_threshold: float = 2e-2  # |R_in| of 'activated' (pictures)
 
     def __post_init__(self) -> None:
