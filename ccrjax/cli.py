@@ -250,9 +250,8 @@ def _split(text: str, kind: type, example: str) -> tuple[Any, ...]:
         return tuple(kind(part) for part in text.split(","))
     except ValueError:
         words = "integers" if kind is int else "numbers"
-        raise argparse.ArgumentTypeError(
-            f"must be comma-separated {words} such as {example}, got {text!r}"
-        ) from None
+        message = f"must be comma-separated {words} such as {example}, got {text!r}"
+        raise argparse.ArgumentTypeError(message) from None
 
 
 def int_tuple(text: str) -> tuple[int, ...]:
@@ -264,8 +263,7 @@ def int_tuple(text: str) -> tuple[int, ...]:
 
 
 def float_tuple(text: str) -> tuple[float, ...]:
-    """``"-1,1"`` to ``(-1.0, 1.0)``: finite numbers (a value starting with ``-`` is given
-    as ``--option=-1,1``). The dataclass the numbers go to checks their meaning."""
+    """``"-1,1"`` to ``(-1.0, 1.0)``, finite numbers (given as ``--option=-1,1``)."""
     values = _split(text, float, "-1,1")
     if not values or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
