@@ -11,19 +11,17 @@
 
 from __future__ import annotations
 
-import _thread
 import argparse
-import contextlib
 import dataclasses
+import importlib
+import importlib.util
 import inspect
 import math
 import os
 import re
-import signal
 import sys
-import threading
 import typing
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -32,10 +30,6 @@ import jax
 from ccrjax.checks import in_interval, interval_text
 
 USAGE_ERROR = 2
-# The repository's committed results (a checkout's experiments/results/): written only when
-# a command is given --force.
-COMMITTED_RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
-INTERRUPTED = 130  # the shell's status for a command stopped by Ctrl-C
 
 
 class UsageError(Exception):
@@ -65,132 +59,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
-
-
-def run_stoppable(prog: str, main: Callable[[], int], kept: str) -> int:
-    """``main()``, with Ctrl-C and SIGTERM ending it through one line saying what was
-    ``kept`` and status 130 (:data:`INTERRUPTED`), not a traceback: the experiments'
-    entry point; a stop ends the process there (see below). Ctrl-C is honoured even where
-    the process was started with SIGINT ignored (a test runner's worker, a script's
-    background job), as ``ccrjax.train`` does."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        with stop_noticed(prog), sigterm_as_interrupt(), interrupts_kept():
-            return main()
-    except KeyboardInterrupt:
-        print(f"{prog}: stopped; {kept}", file=sys.stderr, flush=True)
-        sys.stdout.flush()
-        # What is kept is written by now (the commands' cleanup runs in their finally
-        # blocks), but XLA finishes a computation in flight before the interpreter may exit:
-        # a chunk of training, minutes on a CPU, at full load. The process ends here instead.
-        os._exit(INTERRUPTED)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-STOP_NOTICE = ("stopping (at once, or once the running compilation or chunk of training "
-               "returns: XLA cannot be interrupted)")
-
-
-@contextlib.contextmanager
-def stop_noticed(prog: str) -> Iterator[None]:
-    """Within the block the first Ctrl-C or SIGTERM is answered at once with
-    ``prog: stopping ...`` (:data:`STOP_NOTICE`). Python runs signal handlers only between
-    bytecodes, so a request that arrives while XLA compiles or runs a chunk of training
-    would otherwise go unanswered until that returns (minutes, for a long program); the
-    interpreter's C-level handler writes the signal's number to ``signal.set_wakeup_fd``
-    the moment it arrives, and a watcher thread reading it prints the notice. Outside the
-    main thread (where no wakeup descriptor can be set) it does nothing."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    read, write = os.pipe()
-    os.set_blocking(write, False)
-    previous = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
-
-    def watch() -> None:
-        while True:
-            try:
-                numbers = os.read(read, 64)
-            except OSError:
-                return
-            if not numbers:  # the block ended
-                return
-            if signal.SIGINT in numbers or signal.SIGTERM in numbers:
-                print(f"{prog}: {STOP_NOTICE}", file=sys.stderr, flush=True)
-                return
-
-    watcher = threading.Thread(target=watch, name="stop-notice", daemon=True)
-    watcher.start()
-    try:
-        yield
-    finally:
-        signal.set_wakeup_fd(previous)
-        os.close(write)  # the watcher reads the end of the pipe, after any number in it
-        watcher.join(timeout=5)
-        os.close(read)
-
-
-@contextlib.contextmanager
-def interrupts_kept() -> Iterator[None]:
-    """Within the block a ``KeyboardInterrupt`` that Python would discard is raised again.
-
-    A signal's Python handler runs at the next bytecode, whatever code that is; when it is
-    a garbage-collection callback (JAX registers one) or a ``__del__``, the interpreter
-    prints "Exception ignored in ..." and drops the exception, so a Ctrl-C or SIGTERM
-    would be announced and then lost while the command ran on to its end. Such exceptions
-    reach ``sys.unraisablehook``; this one wakes a helper thread that marks SIGINT as
-    arrived again (answered as Ctrl-C by the commands that use it), and prints nothing.
-    The mark is made from the helper, once the hook has returned: made in the hook
-    (``signal.raise_signal``, ``_thread.interrupt_main``) it would be handled at once,
-    inside the hook, and dropped for good. A mark that lands in such a callback again is
-    dropped and made again."""
-    previous = sys.unraisablehook
-    wake = _thread.allocate_lock()
-    wake.acquire()
-    closing: list[bool] = []
-
-    def interrupt_again() -> None:
-        while True:
-            wake.acquire()  # blocks (without the GIL) until the hook or the exit wakes it
-            if closing:
-                return
-            _thread.interrupt_main(signal.SIGINT)
-
-    def hook(unraisable: Any) -> None:
-        if unraisable.exc_type is not None and issubclass(unraisable.exc_type,
-                                                           KeyboardInterrupt):
-            if wake.locked():
-                wake.release()  # the hook's last call: the helper needs the GIL to act
-            return
-        previous(unraisable)
-
-    helper = threading.Thread(target=interrupt_again, name="interrupt-again", daemon=True)
-    helper.start()
-    sys.unraisablehook = hook
-    try:
-        yield
-    finally:
-        sys.unraisablehook = previous
-        closing.append(True)
-        if wake.locked():
-            wake.release()
-        helper.join(timeout=5)
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, so a command
-    stopped either way ends through the same clean path (status 130, one message)."""
-
-    def interrupt(number: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def fail(prog: str, message: str, status: int = USAGE_ERROR) -> NoReturn:
@@ -399,28 +267,39 @@ def make_folder(path: str | os.PathLike[str], option: str = "--out") -> None:
         raise UsageError(f"{option} {path} cannot be created ({error.strerror})") from None
 
 
-def committed_results_problem(out: str | os.PathLike[str], force: bool,
-                              results: Path | None = None) -> str | None:
-    """Why ``--out out`` may not be written without ``--force`` (``None`` if it may): it
-    lies inside the committed ``results`` folder (:data:`COMMITTED_RESULTS` by default),
-    so a mistyped folder never overwrites (or adds to) the results a repository's tables
-    were made from."""
-    if force:
-        return None
-    results = COMMITTED_RESULTS if results is None else results
-    try:
-        inside = Path(out).resolve().is_relative_to(results.resolve())
-        if not inside:
-            return None
-        with os.scandir(out) as entries:
-            holds = any(entries)
-    except FileNotFoundError:
-        holds = False
-    except (OSError, RuntimeError):  # unreadable, or a symbolic link loop: not our results
-        return None
-    if holds:
-        return f"--out {out} holds committed results; give --force to add to or replace them"
-    return f"--out {out} is inside the committed results ({results}); give --force to write there"
+PLUGIN_HELP = ("a module that registers transforms, learners or scenarios "
+               "(ccrjax.registry): a dotted name or a .py file; repeatable (default: none)")
+
+
+def plugin_names(argv: Sequence[str]) -> list[str]:
+    """The values of every ``--plugin`` in ``argv`` (``--plugin X`` or ``--plugin=X``)."""
+    names = []
+    for index, word in enumerate(argv):
+        if word == "--plugin" and index + 1 < len(argv):
+            names.append(argv[index + 1])
+        elif word.startswith("--plugin="):
+            names.append(word.split("=", 1)[1])
+    return names
+
+
+def load_plugins(argv: Sequence[str]) -> None:
+    """Imports each ``--plugin`` of ``argv`` before the parser is built, so that what it
+    registers is among the options' choices; a module that cannot be imported raises
+    :class:`UsageError` naming it and why."""
+    for name in plugin_names(argv):
+        try:
+            if name.endswith(".py"):
+                path = Path(name)
+                spec = importlib.util.spec_from_file_location(path.stem, path)
+                if spec is None or spec.loader is None or not path.is_file():
+                    raise ImportError(f"no such file {name}")
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[path.stem] = module  # dataclasses look their module up there
+                spec.loader.exec_module(module)
+            else:
+                importlib.import_module(name)
+        except (ImportError, ValueError, SyntaxError) as error:
+            raise UsageError(f"--plugin {name}: cannot import it ({error})") from None
 
 
 def default_cache_dir() -> str:

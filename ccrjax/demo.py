@@ -8,6 +8,12 @@ This is what ``make train`` runs until there is a learner to train.
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python -m ccrjax.demo")
+
 import argparse
 import sys
 import time
@@ -89,6 +95,11 @@ def random_policy(obs: jax.Array, key: jax.Array) -> jax.Array:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Writes ``<scenario>.png`` and ``<scenario>.gif`` for every scenario; returns 0."""
+    return terminal.run_command("python -m ccrjax.demo", lambda: _main(argv),
+                                "the pictures listed above are written")
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.out.mkdir(parents=True, exist_ok=True)

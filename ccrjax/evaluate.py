@@ -16,6 +16,12 @@ stopped (it evaluates the latest checkpoint).
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python -m ccrjax.evaluate")
+
 import argparse
 import dataclasses
 import json
@@ -28,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ccrjax import cli
-from ccrjax.cli import INTERRUPTED, UsageError
+from ccrjax.cli import UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
 from ccrjax.run.folder import (
     EVAL_METRICS,
@@ -131,18 +137,16 @@ def evaluate_run(folder_path: Path, episodes: int, seed: int, pictures: bool) ->
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    cli.enable_compilation_cache(cli.default_cache_dir())
-    try:
-        with cli.sigterm_as_interrupt(), cli.interrupts_kept():
+    with terminal.stopping(PROG) as stop:
+        # The files it writes are written whole (evaluation.json, the pictures).
+        stop.kept = ("the run's checkpoints are unchanged (evaluation.json and the pictures "
+                     "are replaced only once each is complete)")
+        args = build_parser().parse_args(argv)
+        cli.enable_compilation_cache(cli.default_cache_dir())
+        try:
             return evaluate_run(args.run, args.episodes, args.seed, not args.no_pictures)
-    except (UsageError, ValueError) as error:
-        cli.fail(PROG, str(error))
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the files it writes are written whole
-        print(f"{PROG}: stopped; the run's checkpoints are unchanged (evaluation.json and "
-              "the pictures are replaced only once each is complete)", file=sys.stderr,
-              flush=True)
-        return INTERRUPTED
+        except (UsageError, ValueError) as error:
+            cli.fail(PROG, str(error))
 
 
 if __name__ == "__main__":

@@ -17,6 +17,12 @@ value with its intervals).
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python -m ccrjax.sweep")
+
 import argparse
 import dataclasses
 import json
@@ -31,7 +37,8 @@ from ccrjax import cli
 from ccrjax.cli import UsageError
 from ccrjax.envs.scenarios import SCENARIOS
 from ccrjax.run.folder import git_commit, write_atomic
-from ccrjax.run.search import (
+from ccrjax.run.stats import format_mean_ci
+from ccrjax.run.sweep_grid import (
     DEFAULT_VALUES,
     REFERENCE_TEXT,
     SEARCHED_PARAMETER,
@@ -40,8 +47,7 @@ from ccrjax.run.search import (
     search_grid,
     search_rows,
 )
-from ccrjax.run.stats import format_mean_ci
-from ccrjax.training import ALGOS, DEFAULT_BUDGET, LEARNING_STARTS, TrainConfig
+from ccrjax.training import ALGOS, LEARNING_STARTS, TrainConfig, default_budgets
 from ccrjax.training.grid import train_grid
 from ccrjax.viz.plots import draw_search_tradeoff
 
@@ -71,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run (default: python -m ccrjax.train's budget "
                         "of the learner, " + ", ".join(f"{steps:,} for {algo}"
-                                              for algo, steps in DEFAULT_BUDGET.items())
+                                              for algo, steps in default_budgets().items())
                         + "; the protocol's searches, experiments/search.py, use more)")
     parser.add_argument("--learning-starts", type=cli.int_in(0), default=LEARNING_STARTS,
                         help="transitions per seed before the first update "
@@ -86,15 +92,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_out(out: Path, force: bool) -> None:
-    """Refuses, before anything compiles, an ``--out`` that is a file, that already holds
-    a sweep or that lies in the committed results (both unless ``force``), then creates
+    """Refuses, before anything compiles, an ``--out`` that is a file, that holds other
+    files than a sweep's, or that already holds a sweep (unless ``force``), then creates
     the folder, so that no training ends in a folder its results cannot be written to."""
-    problem = cli.committed_results_problem(out, force)
-    if problem:
-        raise UsageError(problem)
-    if out.is_dir() and (out / "sweep.json").exists() and not force:
-        raise UsageError(f"--out {out} already holds a sweep (sweep.json): name another "
-                         "folder, or give --force to replace it")
+    if out.is_dir() and (out / "sweep.json").exists():
+        if not force:
+            raise UsageError(f"--out {out} already holds a sweep (sweep.json): name another "
+                             "folder, or give --force to replace it")
+    elif out.is_dir() and any(out.iterdir()):
+        raise UsageError(f"--out {out} holds other files than a sweep's: name a new or "
+                         "empty folder")
     cli.make_folder(out)
 
 
@@ -175,6 +182,11 @@ def draw_tradeoff(result: dict[str, Any], path: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    return terminal.run_command(PROG, lambda: _main(argv),
+                                "nothing was written (the search writes its files when it ends)")
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     cli.enable_compilation_cache(cli.default_cache_dir())
     try:

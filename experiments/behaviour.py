@@ -35,6 +35,12 @@ average distance to the centre (the paper reports 1.2x to 4.7x).
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/behaviour.py")
+
 import dataclasses
 import json
 import sys
@@ -42,16 +48,16 @@ from pathlib import Path
 
 import jax
 import numpy as np
-import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit
-from ccrjax.run.search import nonfinite_log
 from ccrjax.run.stats import mean_ci
+from ccrjax.run.sweep_grid import nonfinite_log
 from ccrjax.training import TrainConfig
 from ccrjax.training.grid import train_grid
 from ccrjax.viz.analysis import arrival_analysis, followers_closest
 from ccrjax.viz.plots import draw_obstacle_distances
+from experiments import protocol
 
 EXPLORATION_SEEDS = 300  # first seed: apart from every seed set of docs/protocol.md
 
@@ -189,6 +195,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(
+    raise SystemExit(terminal.run_command(
         PROG, main,
         "nothing was written (the results are written when the measurement ends)"))

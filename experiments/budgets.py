@@ -38,6 +38,12 @@ are joined into the cell one program makes (each run depends only on its seed).
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/budgets.py")
+
 import argparse
 import dataclasses
 import json
@@ -46,8 +52,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import protocol
-from ledger import (
+
+from ccrjax import cli
+from ccrjax.run.folder import git_commit, write_atomic
+from ccrjax.run.stats import format_mean_ci, plateau, plateau_or_undetermined
+from ccrjax.run.sweep_grid import nonfinite_runs, nonfinite_text, summarise
+from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training.grid import GridTraining
+from ccrjax.viz.plots import Curves, draw_curves
+from experiments import protocol
+from experiments.ledger import (
     PARTS,
     STOPPED_KEPT,
     Partial,
@@ -78,15 +92,7 @@ from ledger import (
     train_part_programs,
     training_record,
 )
-
-from ccrjax import cli
-from ccrjax.run.folder import git_commit, write_atomic
-from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.search import nonfinite_runs, nonfinite_text, summarise
-from ccrjax.run.stats import format_mean_ci, plateau, plateau_or_undetermined
-from ccrjax.training import ALGOS, TrainConfig
-from ccrjax.training.grid import GridTraining
-from ccrjax.viz.plots import Curves, draw_curves
+from experiments.paper import SCENARIOS
 
 PROG = "python experiments/budgets.py"
 ALL_SCENARIOS = (*SCENARIOS, "nominal")
@@ -504,4 +510,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(PROG, main, STOPPED_KEPT))
+    raise SystemExit(terminal.run_command(PROG, main, STOPPED_KEPT))

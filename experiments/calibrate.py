@@ -39,6 +39,12 @@ why), and writes ``<out>/regimes.md`` and ``regimes.json``.
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/calibrate.py")
+
 import argparse
 import json
 import sys
@@ -52,12 +58,10 @@ from ccrjax import cli
 from ccrjax.envs.env import ROBOT_RADIUS, CCREnv
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.run.folder import git_commit, write_atomic
-from ccrjax.run.paper import PAPER
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import regimes  # noqa: E402
-from ledger import add_out_options, device_name, prepare_out  # noqa: E402
-from reference_controllers import CONTROLLERS, GAMING, evaluate_controller  # noqa: E402
+from experiments import regimes
+from experiments.ledger import add_out_options, device_name, prepare_out
+from experiments.paper import PAPER
+from experiments.reference_controllers import CONTROLLERS, GAMING, evaluate_controller
 
 PROG = "python experiments/calibrate.py"
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
@@ -322,6 +326,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(
+    raise SystemExit(terminal.run_command(
         PROG, main,
         "nothing was written (the results are written when the measurement ends)"))

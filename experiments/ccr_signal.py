@@ -41,6 +41,12 @@ Writes ``<out>/ccr_signal.json`` and ``ccr_signal.md``.
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/ccr_signal.py")
+
 import argparse
 import contextlib
 import json
@@ -61,10 +67,8 @@ from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.acting import run_episode
 from ccrjax.transforms.ccr import dynamics, transform
 from ccrjax.transforms.ccr.transform import CCR
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ledger import add_out_options, prepare_out  # noqa: E402
-from reference_controllers import CONTROLLERS  # noqa: E402
+from experiments.ledger import add_out_options, prepare_out
+from experiments.reference_controllers import CONTROLLERS
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle", "nominal")
 CONTACT_SLACK = 0.01
@@ -340,6 +344,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(
+    raise SystemExit(terminal.run_command(
         PROG, main,
         "nothing was written (the results are written when the measurement ends)"))

@@ -48,9 +48,7 @@ teammate.
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -61,9 +59,7 @@ from ccrjax.checks import check_finite, check_int
 from ccrjax.envs.env import CCREnv, WorldState
 from ccrjax.training.acting import StatefulController
 from ccrjax.transforms.ccr import CCRConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from reference_controllers import (  # noqa: E402
+from experiments.reference_controllers import (
     CLEARANCE,
     Controller,
     _pd,

@@ -25,20 +25,45 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import protocol
 
 from ccrjax import cli
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.grid_checkpoint import discard, train_resumably
-from ccrjax.run.search import nonfinite_log
+from ccrjax.run.sweep_grid import nonfinite_log
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.config import make_env
 from ccrjax.training.grid import GridRuns, GridTraining
+from experiments import protocol
 
-RESULTS = cli.COMMITTED_RESULTS  # experiments/results/
+# The repository's committed results: written only when a command is given --force.
+RESULTS = Path(__file__).resolve().parent / "results"
 INVOCATIONS = "invocations.json"
 PARTIAL = "partial"  # <out>/partial/<cell>/: the program in training's checkpoint
 CHECKPOINT_MINUTES = 15.0
+
+
+def committed_results_problem(out: str | os.PathLike[str], force: bool,
+                              results: Path | None = None) -> str | None:
+    """Why ``--out out`` may not be written without ``--force`` (``None`` if it may): it
+    lies inside the committed ``results`` folder (:data:`RESULTS` by default),
+    so a mistyped folder never overwrites (or adds to) the results a repository's tables
+    were made from."""
+    if force:
+        return None
+    results = RESULTS if results is None else results
+    try:
+        inside = Path(out).resolve().is_relative_to(results.resolve())
+        if not inside:
+            return None
+        with os.scandir(out) as entries:
+            holds = any(entries)
+    except FileNotFoundError:
+        holds = False
+    except (OSError, RuntimeError):  # unreadable, or a symbolic link loop: not our results
+        return None
+    if holds:
+        return f"--out {out} holds committed results; give --force to add to or replace them"
+    return f"--out {out} is inside the committed results ({results}); give --force to write there"
 
 
 def add_checkpoint_option(parser: Any) -> None:
@@ -427,7 +452,7 @@ def check_out(out: Path, force: bool) -> str | None:
     committed results under ``experiments/results/`` without ``--force``."""
     if out.exists() and not out.is_dir():
         return f"--out {out} is a file, not a folder"
-    problem = cli.committed_results_problem(out, force, RESULTS)
+    problem = committed_results_problem(out, force)
     if problem and out.is_dir():  # it holds results: say what --force keeps
         return f"{problem} (cells made with the same settings are kept)"
     return problem

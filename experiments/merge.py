@@ -21,7 +21,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ledger import (
+from ccrjax import cli
+from ccrjax.run.folder import write_atomic
+from ccrjax.training import ALGOS
+from experiments.ledger import (
     INVOCATIONS,
     NOT_IN_CELLS,
     cell_identity,
@@ -32,10 +35,6 @@ from ledger import (
     read_ledger,
     same_cells,
 )
-
-from ccrjax import cli
-from ccrjax.run.folder import write_atomic
-from ccrjax.training import ALGOS
 
 PROG = "python experiments/merge.py"
 

@@ -13,9 +13,9 @@ from typing import Any
 
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
-from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.selection import SelectionRule
 from ccrjax.training import ALGOS, TrainConfig
+from experiments.paper import SCENARIOS
+from experiments.selection import SelectionRule
 
 # Seeds: the tables' seeds never select a hyperparameter and never choose a budget.
 TABLE_SEEDS = tuple(range(0, 10))

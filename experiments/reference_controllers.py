@@ -27,9 +27,7 @@ do with those actions.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -38,8 +36,6 @@ from ccrjax.envs.env import CCREnv, WorldState
 from ccrjax.envs.world import DISCRETE_ACTION_SETS
 from ccrjax.training.acting import StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # information_controllers
 
 # The PD gains: about the fastest arrival from 3 units away (19 steps) with an overshoot
 # of 0.02 under the MPE's damping 0.25 and sensitivity 5 (v' = 0.75 v + 0.5 u per step).
@@ -237,7 +233,7 @@ def evaluate_controller(env: CCREnv, name: str, key: jax.Array, **params
     (snapped to the environment's discrete actions if it has them): one of
     :data:`CONTROLLERS` or of ``information_controllers.INFORMATION_CONTROLLERS``, built
     with ``params`` (the memoriser needs its height ``y_w``)."""
-    from information_controllers import INFORMATION_CONTROLLERS  # it imports this module
+    from experiments.information_controllers import INFORMATION_CONTROLLERS  # it imports this module
 
     known = {**CONTROLLERS, **INFORMATION_CONTROLLERS}
     if name not in known:

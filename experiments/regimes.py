@@ -48,9 +48,7 @@ its choice made on the device (``choose_height`` is traceable). Writes
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -62,10 +60,8 @@ from ccrjax.envs.scenarios import Layout
 from ccrjax.training.acting import Episode, episode_metrics, run_episode
 from ccrjax.transforms import Plain
 from ccrjax.transforms.ccr import CCRConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ccr_signal import forewarned_steps, forewarning  # noqa: E402
-from information_controllers import (  # noqa: E402
+from experiments.ccr_signal import forewarned_steps, forewarning
+from experiments.information_controllers import (
     choose_height,
     in_blocks,
     memoriser,
@@ -73,7 +69,7 @@ from information_controllers import (  # noqa: E402
     self_reactive,
     team_informed,
 )
-from reference_controllers import go_to_goal, oracle  # noqa: E402
+from experiments.reference_controllers import go_to_goal, oracle
 
 REGIME_SCENARIOS = ("hidden_obstacle", "turbulence", "strong_wind")
 PLACEMENTS = (0.25, 0.5, 1.0)  # half-ranges h of the hazard centre's height, [-h, h]

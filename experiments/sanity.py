@@ -12,6 +12,12 @@ environment steps.
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/sanity.py")
+
 import dataclasses
 import json
 import sys
@@ -96,6 +102,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(
+    raise SystemExit(terminal.run_command(
         PROG, main,
         "nothing to keep (it prints its results as they come)"))

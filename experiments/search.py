@@ -7,7 +7,7 @@
 Both searches follow one protocol (``docs/protocol.md``, ``experiments/protocol.py``),
 fixed before either ran: the same budget per learner, the same selection seeds (100-102,
 disjoint from the tables' 0-9), six values spanning more than two orders of magnitude,
-and the same selection rule (:mod:`ccrjax.run.selection`): the lowest mean danger among the
+and the same selection rule (:mod:`experiments.selection`): the lowest mean danger among the
 values whose mean success is at most 5 points below the reference's (value 0), one value for
 every scenario and learner, as the paper chose one lambda.
 
@@ -41,6 +41,12 @@ training nothing for the pairs whose cells exist.
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/search.py")
+
 import argparse
 import dataclasses
 import json
@@ -49,8 +55,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import protocol
-from ledger import (
+
+from ccrjax import cli
+from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
+from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
+from ccrjax.run.sweep_grid import (
+    REFERENCE_NAME,
+    nonfinite_runs,
+    nonfinite_text,
+    search_grid,
+    search_rows,
+    summarise,
+)
+from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training.grid import GridTraining
+from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
+from experiments import protocol
+from experiments.ledger import (
     PARTS,
     STOPPED_KEPT,
     Partial,
@@ -83,23 +104,8 @@ from ledger import (
     train_part_programs,
     training_record,
 )
-
-from ccrjax import cli
-from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
-from ccrjax.run.paper import SCENARIOS
-from ccrjax.run.search import (
-    REFERENCE_NAME,
-    nonfinite_runs,
-    nonfinite_text,
-    search_grid,
-    search_rows,
-    summarise,
-)
-from ccrjax.run.selection import select
-from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
-from ccrjax.training import ALGOS, TrainConfig
-from ccrjax.training.grid import GridTraining
-from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
+from experiments.paper import SCENARIOS
+from experiments.selection import select
 
 PROG = "python experiments/search.py"
 LEARNER_NAMES = protocol.LEARNER_NAMES
@@ -527,4 +533,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(PROG, main, STOPPED_KEPT))
+    raise SystemExit(terminal.run_command(PROG, main, STOPPED_KEPT))

@@ -74,6 +74,12 @@ made with the same settings. Every invocation is recorded in ``<out>/invocations
 
 from __future__ import annotations
 
+# ruff: noqa: E402 - the stop handling is installed before the other imports
+from ccrjax import terminal
+
+if __name__ == "__main__":  # a command: Ctrl-C and SIGTERM are answered from here on
+    terminal.install("python experiments/tables.py")
+
 import argparse
 import dataclasses
 import json
@@ -85,8 +91,43 @@ from typing import Any
 
 import jax
 import numpy as np
-import protocol
-from ledger import (
+from PIL import Image, ImageDraw, ImageFont
+
+from ccrjax import cli
+from ccrjax.envs.scenarios import Layout
+from ccrjax.run.folder import (
+    METRIC_RANGES,
+    POINT_METRICS,
+    git_commit,
+    replacing,
+    write_atomic,
+)
+from ccrjax.run.stats import (
+    format_mean_ci,
+    holm,
+    iqm,
+    mean_ci,
+    mean_relative_change,
+    plateau_or_undetermined,
+    probability_of_improvement,
+    welch,
+)
+from ccrjax.run.sweep_grid import nonfinite_runs, nonfinite_text
+from ccrjax.training import ALGOS, TrainConfig, make_env
+from ccrjax.training.grid import GridRuns, GridTraining
+from ccrjax.transforms import Pessimistic
+from ccrjax.transforms.ccr import CCR, CCRConfig
+from ccrjax.viz.analysis import arrival_analysis, followers_closest
+from ccrjax.viz.plots import (
+    VARIANT_COLOURS,
+    Curves,
+    draw_curves,
+    draw_obstacle_distances,
+    draw_progress_matched,
+)
+from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
+from experiments import protocol
+from experiments.ledger import (
     RESULTS,
     STOPPED_KEPT,
     Ledger,
@@ -117,43 +158,8 @@ from ledger import (
     settings_record,
     training_record,
 )
-from PIL import Image, ImageDraw, ImageFont
-from reference_controllers import evaluate_controller
-
-from ccrjax import cli
-from ccrjax.envs.scenarios import Layout
-from ccrjax.run.folder import (
-    METRIC_RANGES,
-    POINT_METRICS,
-    git_commit,
-    replacing,
-    write_atomic,
-)
-from ccrjax.run.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, SCENARIOS
-from ccrjax.run.search import nonfinite_runs, nonfinite_text
-from ccrjax.run.stats import (
-    format_mean_ci,
-    holm,
-    iqm,
-    mean_ci,
-    mean_relative_change,
-    plateau_or_undetermined,
-    probability_of_improvement,
-    welch,
-)
-from ccrjax.training import ALGOS, TrainConfig, make_env
-from ccrjax.training.grid import GridRuns, GridTraining
-from ccrjax.transforms import Pessimistic
-from ccrjax.transforms.ccr import CCR, CCRConfig
-from ccrjax.viz.analysis import arrival_analysis, followers_closest
-from ccrjax.viz.plots import (
-    VARIANT_COLOURS,
-    Curves,
-    draw_curves,
-    draw_obstacle_distances,
-    draw_progress_matched,
-)
-from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
+from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, SCENARIOS
+from experiments.reference_controllers import evaluate_controller
 
 PROG = "python experiments/tables.py"
 VARIANTS = ("plain", "pessimistic", "ccr")
@@ -1122,4 +1128,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(cli.run_stoppable(PROG, main, STOPPED_KEPT))
+    raise SystemExit(terminal.run_command(PROG, main, STOPPED_KEPT))

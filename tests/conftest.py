@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
 import tempfile
-from pathlib import Path
 
 import jax
 import pytest
@@ -69,7 +67,3 @@ def subprocess_env() -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     return env
 
-
-# The experiments' scripts import their sibling modules (protocol, ledger, ...) as a script
-# run from experiments/ would.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax import cli, evaluate, sweep, train
+from ccrjax import evaluate, sweep, terminal, train
 from ccrjax.run.checkpoint import Checkpoints
 from ccrjax.run.folder import EVAL_METRICS, METRIC_RANGES, RunFolder, fingerprint, read_metrics
 from ccrjax.run.stats import mean_ci
@@ -234,7 +234,7 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
                                                                              monkeypatch):
     """A file as --out, or a folder that already holds a sweep (without --force), gets one
     line and status 2 before anything compiles; the default values are the protocol's."""
-    import protocol
+    from experiments import protocol
 
     def refused(out: Path, *fragments: str) -> None:
         with pytest.raises(SystemExit) as exit_:
@@ -253,18 +253,12 @@ def test_sweep_refuses_an_out_it_cannot_or_should_not_write_before_training(tmp_
     (earlier / "sweep.json").write_text("{}")
     refused(earlier, "already holds a sweep", "--force")
     assert (earlier / "sweep.json").read_text() == "{}"
-    # The committed results (a stand-in here, so that a failure writes nothing of the
-    # repository's): a folder of them, or a new one among them, needs --force.
-    assert cli.committed_results_problem(cli.COMMITTED_RESULTS / "x", False)  # the real ones
-    results = tmp_path / "results"
-    (results / "search" / "ccr").mkdir(parents=True)
-    (results / "search" / "ccr" / "search.json").write_text("{}")
-    monkeypatch.setattr(cli, "COMMITTED_RESULTS", results)
-    committed = results / "search" / "ccr"
-    refused(committed, "holds committed results", "--force")
-    assert sorted(p.name for p in committed.iterdir()) == ["search.json"]
-    refused(results / "never_made", "inside the committed results", "--force")
-    assert not (results / "never_made").exists()
+    # A folder of other files (an experiment's results, say) is never written into.
+    other = tmp_path / "results"
+    other.mkdir()
+    (other / "search.json").write_text("{}")
+    refused(other, "holds other files than a sweep's")
+    assert sorted(p.name for p in other.iterdir()) == ["search.json"]
     with pytest.raises(SystemExit) as exit_:
         sweep.main(["--values", "0", "1", "1", "--steps", "800", "--learning-starts", "400",
                     "--out", str(tmp_path / "repeated")])
@@ -303,12 +297,12 @@ def test_the_training_benchmark_refuses_a_malformed_update_setting_in_one_line(
     assert "--maac-updates" in lines[0] and "1x256" in lines[0]
 
 
-# A stop whose KeyboardInterrupt is raised inside a garbage-collection callback, where Python
-# prints "Exception ignored" and drops it (JAX registers such a callback: a Ctrl-C landing
-# there was once lost and the search ran on to exit 0).
+# A signal whose Python handler runs inside a garbage-collection callback, where an exception
+# would be printed as "Exception ignored" and dropped (JAX registers such a callback: a Ctrl-C
+# landing there was once lost and the search ran on to exit 0): the stop still happens.
 STOP_IN_GC_CALLBACK = """
 import gc, signal, sys, time
-from ccrjax import cli
+from ccrjax import terminal
 
 def on_collection(phase, info):
     if phase == "start" and not raised:
@@ -329,7 +323,7 @@ def main():
     print("ran on", file=sys.stderr)
     return 0
 
-raise SystemExit(cli.run_stoppable("prog", main, "nothing to keep"))
+raise SystemExit(terminal.run_command("prog", main, "nothing to keep"))
 """
 
 
@@ -337,6 +331,6 @@ def test_an_interrupt_raised_where_python_discards_it_still_stops_the_command(
         subprocess_env):
     done = subprocess.run([sys.executable, "-c", STOP_IN_GC_CALLBACK], capture_output=True,
                           text=True, timeout=120, env=subprocess_env, cwd=ROOT)
-    assert done.returncode == cli.INTERRUPTED, done.stderr
+    assert done.returncode == terminal.INTERRUPTED, done.stderr
     assert "ran on" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
-    assert done.stderr.strip().splitlines()[-1] == "prog: stopped; nothing to keep"
+    assert done.stderr.strip().splitlines()[-1] == "prog: stopped by SIGINT; nothing to keep"

@@ -10,6 +10,7 @@ behaviour; the regimes run once at a tiny size.
 
 from __future__ import annotations
 
+import importlib
 import json
 
 import jax
@@ -21,19 +22,18 @@ from ccrjax.envs.env import CCREnv
 from ccrjax.envs.scenarios import Layout
 from ccrjax.training.acting import Episode, StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
-from tests.test_reference_controllers import load_script
 
 SCENARIOS = ("turbulence", "strong_wind", "hidden_obstacle")
 
 
 @pytest.fixture(scope="module")
 def info():
-    return load_script("information_controllers")
+    return importlib.import_module("experiments.information_controllers")
 
 
 @pytest.fixture(scope="module")
 def reference():
-    return load_script("reference_controllers")
+    return importlib.import_module("experiments.reference_controllers")
 
 
 def play(env, controller, seed=0):
@@ -253,7 +253,7 @@ def test_choose_height(info):
 
 
 def test_memoriser_height_is_chosen_on_the_selection_seed(monkeypatch):
-    regimes = load_script("regimes")
+    regimes = importlib.import_module("experiments.regimes")
     calls, programs = [], {}
     real = regimes.regime_program
 
@@ -314,7 +314,7 @@ def test_evaluate_controller_runs_the_information_controllers(reference):
 
 @pytest.mark.slow
 def test_calibrate_regimes_at_a_tiny_size(tmp_path):
-    calibrate = load_script("calibrate")
+    calibrate = importlib.import_module("experiments.calibrate")
     assert calibrate.main(["--regimes", "--episodes", "8", "--select-episodes", "4",
                            "--scenarios", "hidden_obstacle", "--placements", "0.25",
                            "--spacings", "0", "--out", str(tmp_path)]) == 0

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import calibrate
-import regimes
-
+from experiments import calibrate, regimes
 from tests.test_train_command import assert_usage_error, run_main
 
 

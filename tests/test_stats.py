@@ -1,5 +1,5 @@
 """Statistics over seeds (:mod:`ccrjax.run.stats`) and the selection rule
-(:mod:`ccrjax.run.selection`) against hand computations: Student's t interval (clipped to a
+(:mod:`experiments.selection`) against hand computations: Student's t interval (clipped to a
 metric's range), the Welch
 test, the headline's bootstrap interval, rliable's IQM and probability of improvement,
 the plateau check.
@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from ccrjax.run.selection import SelectionRule, select
 from ccrjax.run.stats import (
     holm,
     iqm,
@@ -29,6 +28,7 @@ from ccrjax.run.stats import (
     probability_of_improvement,
     welch,
 )
+from experiments.selection import SelectionRule, select
 
 TABLE_RTOL = 2e-4
 

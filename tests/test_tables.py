@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,17 +20,13 @@ pytestmark = pytest.mark.slow
 SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
 
 
-def load_module(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+def load_module(name: str):
+    return importlib.import_module(f"experiments.{name}")
 
 
 @pytest.fixture(scope="module")
 def tables():
-    return load_module("tables_script", SCRIPT)
+    return load_module("tables")
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +39,7 @@ def quick_run(tables, tmp_path_factory):
 def assert_cells_record_their_training(out: Path) -> None:
     """Every cell written holds the record of what it was trained with, equal to what the
     current code expects for it (``ledger.cell_is_current``)."""
-    import ledger
+    from experiments import ledger
 
     cells = sorted((out / "cells").glob("*.json"))
     assert cells
@@ -191,7 +186,7 @@ def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
 def test_the_searches_pipeline_at_a_tiny_size(tmp_path, capsys, monkeypatch):
     """Both searches over one scenario and learner: the cells, the choice by the rule,
     the files; then a re-run that trains nothing."""
-    search = load_module("search_script", SCRIPT.parent / "search.py")
+    search = load_module("search")
     out = tmp_path / "search"
     argv = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence", "--algos",
             "iddpg", "--values", "0.1", "1", "--out", str(out)]
@@ -239,7 +234,7 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     """The plain learners' budget check over one scenario and two learners: the cells, the
     checks and the proposal, the files; then a re-run that trains nothing and a wider one
     that trains only the new cell."""
-    budgets = load_module("budgets_script", SCRIPT.parent / "budgets.py")
+    budgets = load_module("budgets")
     out = tmp_path / "budgets"
     argv = ["--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--out", str(out)]
     assert budgets.main(argv) == 0
@@ -325,7 +320,7 @@ def test_cells_made_in_seed_parts_join_into_the_cells_one_program_makes(tables, 
     """``--part-seeds``: a program made seed by seed; each variant's parts are joined into
     the cell one program of all seeds makes (per-seed records in seed order, the plateau
     check and the first seed's episode) once they cover its seeds, and deleted."""
-    import ledger
+    from experiments import ledger
 
     out = tmp_path / "parts"
     pair = ["--quick", "--scenarios", "hidden_obstacle", "--algos", "iddpg", "--out", str(out)]

@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax import evaluate, train
+from ccrjax import evaluate, terminal, train
+from ccrjax.run import session as sessions
 from ccrjax.run.checkpoint import Checkpoints
 from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics, tree_commit
 from ccrjax.training import make_train
@@ -241,7 +242,8 @@ def test_ctrl_c_saves_a_checkpoint_exits_cleanly_and_resumes_exactly(
 STOP_AT = """
 import os, signal, sys
 import jax
-from ccrjax import evaluate, train
+from ccrjax import evaluate, terminal, train
+from ccrjax.run import session as sessions
 from ccrjax.run.checkpoint import Checkpoints
 
 command, moment, name, times, *argv = sys.argv[1:]
@@ -260,16 +262,16 @@ def stopping_before(function):
 
 
 if moment == "compilation":
-    train.compile_phase = stopping_before(train.compile_phase)
+    terminal.compile_phase = stopping_before(terminal.compile_phase)
 elif moment == "first-chunk":
-    prepare = train.prepare
+    prepare = sessions.prepare
 
     def prepare_then_stop_in_the_first_chunk(*args, **kwargs):
         session = prepare(*args, **kwargs)
         chunk = session.chunk
         session.chunk = lambda state, learn: (stop() if learn else None, chunk(state, learn))[1]
         return session
-    train.prepare = prepare_then_stop_in_the_first_chunk
+    sessions.prepare = prepare_then_stop_in_the_first_chunk
 elif moment == "checkpoint-write":
     save = Checkpoints.save
 
@@ -322,7 +324,7 @@ def test_sigterm_during_compilation_exits_130_and_the_same_command_starts_over(
     status, err = stopped_at("compilation", "SIGTERM", 1, [*TINY, "--out", out],
                              subprocess_env)
     assert_stopped_cleanly(status, err,
-                           "stopped by SIGTERM before training began; no checkpoint was written")
+                           "stopped by SIGTERM; no checkpoint was written")
     assert checkpoint_steps(out) == [] and (out / "config.json").exists()
     status, _, err = run_main(train, [*TINY, "--out", out], capsys)  # the same command
     assert status == 0, err
@@ -336,7 +338,7 @@ def test_a_second_ctrl_c_during_compilation_stops_at_once_and_resume_starts_over
 ):
     out = tmp_path / "twice"
     status, err = stopped_at("compilation", "SIGINT", 2, [*TINY, "--out", out], subprocess_env)
-    assert_stopped_cleanly(status, err, "stopped at once before training began")
+    assert_stopped_cleanly(status, err, "stopped by SIGINT; no checkpoint was written")
     assert "starts again from the beginning" in resume_to_the_end(out, capsys)
     assert_same_run(finished_run, out)
 
@@ -357,7 +359,7 @@ def test_a_second_sigterm_during_a_checkpoint_write_keeps_it_whole_and_resumes_e
     out = tmp_path / "writing"
     status, err = stopped_at("checkpoint-write", "SIGTERM", 2, [*TINY, "--out", out],
                              subprocess_env)
-    assert_stopped_cleanly(status, err, "stopped at once at 200 steps per seed",
+    assert_stopped_cleanly(status, err, "stopped by SIGTERM; at 200 steps per seed, "
                            "checkpoint 200 is saved")
     assert checkpoint_steps(out) == [200]
     resume_to_the_end(out, capsys)
@@ -372,7 +374,7 @@ def test_evaluate_stopped_during_evaluation_exits_130_and_writes_nothing(
     (out / "evaluation.json").unlink(missing_ok=True)
     status, err = stopped_at("evaluation", "SIGTERM", 1, [out, "--episodes", "4"],
                              subprocess_env, command="evaluate")
-    assert_stopped_cleanly(status, err, "stopped; the run's checkpoints are unchanged")
+    assert_stopped_cleanly(status, err, "stopped by SIGTERM; the run's checkpoints are unchanged")
     assert not (out / "evaluation.json").exists()
 
 
@@ -707,12 +709,12 @@ def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training
         def memory_stats(self):
             return {"bytes_limit": 80 * 2**30, "bytes_in_use": 0}
 
-    monkeypatch.setattr(train.jax, "devices", lambda *_: [Host()])
-    assert train.training_memory() == (train.physical_memory(), "this machine")
-    monkeypatch.setattr(train.jax, "devices", lambda *_: [Accelerator()])
-    assert train.training_memory() == (80 * 2**30, "the NVIDIA H100 80GB HBM3")
+    monkeypatch.setattr(sessions.jax, "devices", lambda *_: [Host()])
+    assert sessions.training_memory() == (sessions.physical_memory(), "this machine")
+    monkeypatch.setattr(sessions.jax, "devices", lambda *_: [Accelerator()])
+    assert sessions.training_memory() == (80 * 2**30, "the NVIDIA H100 80GB HBM3")
     monkeypatch.undo()
-    monkeypatch.setattr(train, "training_memory", lambda: (2**20, "the tiny device"))
+    monkeypatch.setattr(sessions, "training_memory", lambda: (2**20, "the tiny device"))
     out = tmp_path / "too-big"
     status, _, err = run_main(train, [*TINY, "--out", out], capsys)
     assert_usage_error(status, err, "needs", "GiB (twice that while training) but the tiny "
@@ -723,14 +725,17 @@ def test_a_state_larger_than_the_memory_that_holds_it_is_refused_before_training
 def test_a_request_after_the_runs_last_check_still_exits_130_saying_all_is_written(capsys):
     """Ctrl-C in the moment between a finished run's last check and the command's exit: no
     promise of work still to come, and the command ends with 130 and one closing line."""
-    with train.StopRequest() as stop:
+    before = signal.getsignal(signal.SIGINT)
+    with terminal.stopping("prog") as stop:
         stop.phase = "done"
         os.kill(os.getpid(), signal.SIGINT)
         assert stop.requested
+        time.sleep(0.2)  # the watcher thread has seen it too, and said nothing
         assert capsys.readouterr().err == ""
         assert stop.closing(0) == 130
         assert stop.closing(2) == 2
     err = capsys.readouterr().err
-    assert err.strip() == "stopped by SIGINT after the run finished; everything is written"
-    with train.StopRequest() as stop:
+    assert err.strip() == "prog: stopped by SIGINT after the work finished; everything is written"
+    with terminal.stopping("prog") as stop:
         assert stop.closing(0) == 0
+    assert signal.getsignal(signal.SIGINT) is before  # given back

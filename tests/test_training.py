@@ -13,11 +13,11 @@ import pytest
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.envs.env import CCREnv
 from ccrjax.training import (
-    DEFAULT_BUDGET,
     NonFiniteTraining,
     TrainConfig,
     config_from_dict,
     config_to_dict,
+    default_budgets,
     make_train,
 )
 from ccrjax.training.acting import episode_metrics, run_episode
@@ -235,7 +235,7 @@ def test_a_bad_penalty_is_refused_by_the_pessimistic_transform(penalty):
 def test_a_config_is_not_rewritten_and_says_what_it_uses():
     config = TrainConfig(algo="iddpg", variant="pessimistic")
     assert (config.total_env_steps, config.learner, config.transform) == (None, None, None)
-    assert config.budget == DEFAULT_BUDGET["iddpg"]
+    assert config.budget == default_budgets()["iddpg"] == 400_000
     assert config.learner_config == DDPGConfig(centralised_critic=False)
     assert config.transform_config == Pessimistic()
     again = config_from_dict(config_to_dict(config))

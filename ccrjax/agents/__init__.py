@@ -8,6 +8,7 @@ from ccrjax.agents.maac import MAAC, MAACConfig, MAACState
 from ccrjax.agents.replay import ReplayBuffer, add_episodes, init_replay, sample
 from ccrjax.agents.types import Learner, Transition
 
+# The built-in learners (ccrjax.registry.learner_names() adds those registered elsewhere).
 ALGOS = ("iddpg", "maddpg", "maac")
 
 __all__ = ["ALGOS", "DDPG", "MAAC", "DDPGConfig", "DDPGState", "Learner", "MAACConfig",

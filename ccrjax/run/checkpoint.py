@@ -39,6 +39,8 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from ccrjax import terminal
+
 
 class _NotAnInterrupt(logging.Filter):
     """Drops a log record carrying a ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM as the
@@ -127,6 +129,8 @@ class Checkpoints:
         await_cleanup = getattr(self.manager, "_maybe_await_cleanup_tmp_directory", None)
         if await_cleanup is not None:
             await_cleanup()
+        # A stop that ends the process (ccrjax.terminal) first lets a write in flight finish.
+        self._exit_token = terminal.on_exit(self.manager.wait_until_finished)
 
     def steps(self) -> list[int]:
         return sorted(self.manager.all_steps())
@@ -170,6 +174,7 @@ class Checkpoints:
         self.drop_old_buffers(keep=1)
 
     def close(self) -> None:
+        terminal.forget(self._exit_token)
         self.manager.close()
 
     def _move_aside(self, step: int) -> Path:

@@ -42,6 +42,8 @@ from ccrjax.run.stats import format_mean_ci, mean_ci
 # (ccrjax.training.acting.episode_metrics), and the training-time counts of dangerous robot-steps:
 # all of training, and from the start of learning (the warm-up's random steps are the
 # same for every variant).
+# The command that trains a run folder (named in what a stopped run says to type next).
+TRAIN_COMMAND = "python -m ccrjax.train"
 EVAL_METRICS = ("return", "success_rate", "target_distance", "danger_frequency",
                 "hazard_distance")
 TRAINING_COUNTS = ("cumulative_danger_steps", "learning_danger_steps")

@@ -12,39 +12,23 @@ import dataclasses
 import math
 from typing import Any
 
-from ccrjax.agents import ALGOS
-from ccrjax.agents.ddpg import DDPG, DDPGConfig
-from ccrjax.agents.maac import MAAC, MAACConfig
 from ccrjax.agents.replay import replay_capacity
 from ccrjax.agents.types import Learner
 from ccrjax.checks import check_int, check_positive_int
 from ccrjax.envs.env import CCREnv, check_team
 from ccrjax.envs.scenarios import SCENARIOS, Layout, make_scenario
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
-from ccrjax.transforms import VARIANTS, Pessimistic, Plain, Transform
-from ccrjax.transforms.ccr import (
-    CCR,
-    CCRConfig,
-    CCRPerfect,
-    CCRReward,
-    CCRScores,
-    DangerFlags,
-)
+from ccrjax.registry import learner_entry, learner_names, transform_entry
+from ccrjax.transforms import Transform
 
 # Learning starts after this many transitions per seed, whatever the learner and episode
 # length: the original MADDPG's 1024 x 25 (its batch size times its episode length).
 LEARNING_STARTS = 25_600
-# Default environment steps per seed: what each learner needs to solve `nominal` (success
-# >= 90%, experiments/sanity.py). MAAC makes 4 heavier updates per 100 steps, DDPG one.
-DEFAULT_BUDGET = {"iddpg": 400_000, "maddpg": 400_000, "maac": 200_000}
 
 
-# The transform of each variant, with its parameters: its type and its defaults.
-TRANSFORM_TYPES: dict[str, type] = {"plain": Plain, "pessimistic": Pessimistic, "ccr": CCR,
-                                     "ccr_scores": CCRScores, "ccr_reward": CCRReward,
-                                     "ccr_perfect": CCRPerfect, "danger_flags": DangerFlags}
-LEARNER_CONFIG_TYPES: dict[str, type] = {"iddpg": DDPGConfig, "maddpg": DDPGConfig,
-                                         "maac": MAACConfig}
+def default_budgets() -> dict[str, int]:
+    """Environment steps per seed of a run that names none, by learner (the registry's)."""
+    return {name: learner_entry(name).default_budget for name in learner_names()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,20 +44,20 @@ class TrainConfig:
     building an environment; nothing is rewritten.
     """
 
-    algo: str = "maddpg"  # learner: iddpg, maddpg or maac
-    scenario: str = "nominal"  # emergency scenario
-    variant: str = "plain"  # plain learner, pessimistic baseline, ccr, or one of ccr's parts
+    algo: str = "maddpg"  # learner: iddpg, maddpg, maac, or one registered (ccrjax.registry)
+    scenario: str = "nominal"  # emergency scenario, built in or registered
+    variant: str = "plain"  # plain, pessimistic, ccr, one of ccr's parts, or one registered
     # The variant's transform and its parameters: Plain(), Pessimistic(penalty),
     # CCR(CCRConfig) (and its parts CCRScores, CCRReward, CCRPerfect), or
-    # DangerFlags(comm_range); None: the variant's defaults.
-    transform: Plain | Pessimistic | CCR | None = None
-    # The learner's hyperparameters: a DDPGConfig (iddpg, maddpg) or a MAACConfig (maac);
-    # None: the learner's defaults.
-    learner: DDPGConfig | MAACConfig | None = None
+    # DangerFlags(comm_range), or a registered transform; None: the variant's defaults.
+    transform: Transform | None = None
+    # The learner's hyperparameters: a DDPGConfig (iddpg, maddpg), a MAACConfig (maac), or
+    # a registered learner's config; None: the learner's defaults.
+    learner: Any = None
     num_robots: int = 5  # team size
     episode_length: int = 25  # steps per episode
     num_envs: int = 8  # training environments per seed
-    total_env_steps: int | None = None  # environment steps per seed; None: DEFAULT_BUDGET
+    total_env_steps: int | None = None  # environment steps per seed; None: the learner's default
     eval_every: int = 20_000  # environment steps per seed between evaluations
     eval_episodes: int = 64  # fresh episodes per evaluation and seed
     learning_starts: int = LEARNING_STARTS  # transitions per seed before the first update
@@ -84,17 +68,13 @@ class TrainConfig:
     layout_params: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.algo not in ALGOS:
-            raise ValueError(f"algo must be one of {list(ALGOS)}, got {self.algo!r}")
+        learner_type = learner_entry(self.algo).config_type  # unknown names: ValueError
         if self.scenario not in SCENARIOS:
-            raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {self.scenario!r}")
-        if self.variant not in VARIANTS:
-            raise ValueError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
-        transform_type = TRANSFORM_TYPES[self.variant]
+            raise ValueError(f"scenario must be one of {list(SCENARIOS)}, got {self.scenario!r}")
+        transform_type = transform_entry(self.variant).type
         if self.transform is not None and type(self.transform) is not transform_type:
             raise ValueError(f"TrainConfig.transform of variant {self.variant!r} must be a "
                              f"{transform_type.__name__} or None, got {self.transform!r}")
-        learner_type = LEARNER_CONFIG_TYPES[self.algo]
         if self.learner is not None and type(self.learner) is not learner_type:
             raise ValueError(f"TrainConfig.learner of algo {self.algo!r} must be a "
                              f"{learner_type.__name__} or None, got {self.learner!r}")
@@ -130,21 +110,22 @@ class TrainConfig:
     @property
     def budget(self) -> int:
         """Environment steps per seed: ``total_env_steps``, or the learner's default."""
-        return DEFAULT_BUDGET[self.algo] if self.total_env_steps is None else self.total_env_steps
+        if self.total_env_steps is None:
+            return learner_entry(self.algo).default_budget
+        return self.total_env_steps
 
     @property
-    def transform_config(self) -> Plain | Pessimistic | CCR:
+    def transform_config(self) -> Transform:
         """The transform the run uses: ``transform``, or the variant's defaults."""
-        return TRANSFORM_TYPES[self.variant]() if self.transform is None else self.transform
+        return transform_entry(self.variant).type() if self.transform is None else self.transform
 
     @property
-    def learner_config(self) -> DDPGConfig | MAACConfig:
-        """The learner's hyperparameters: ``learner``, or the learner's defaults (for
-        iddpg and maddpg, the critic centralised or not as the name says)."""
-        config = LEARNER_CONFIG_TYPES[self.algo]() if self.learner is None else self.learner
-        if self.algo == "maac":
-            return config
-        return dataclasses.replace(config, centralised_critic=self.algo == "maddpg")
+    def learner_config(self) -> Any:
+        """The learner's hyperparameters: ``learner``, or the learner's defaults, completed
+        for the learner's name (iddpg's and maddpg's critic centralised or not as it says)."""
+        entry = learner_entry(self.algo)
+        config = entry.config_type() if self.learner is None else self.learner
+        return config if entry.configure is None else entry.configure(config)
 
     @property
     def steps_per_iteration(self) -> int:
@@ -236,13 +217,6 @@ def _tuples(value: Any) -> Any:
     return value
 
 
-def _transform_from_dict(variant: str, data: dict[str, Any]) -> Plain | Pessimistic | CCR:
-    transform_type = TRANSFORM_TYPES[variant]
-    if issubclass(transform_type, CCR):  # ccr and its parts: the fields of their CCRConfig
-        return transform_type(CCRConfig(**data.get("config", {})))
-    return TRANSFORM_TYPES[variant](**data)
-
-
 def config_from_dict(data: dict[str, Any]) -> TrainConfig:
     """The inverse of :func:`config_to_dict` (JSON lists become tuples); validates."""
     names = {field.name for field in dataclasses.fields(TrainConfig)}
@@ -251,31 +225,36 @@ def config_from_dict(data: dict[str, Any]) -> TrainConfig:
         raise ValueError(f"unknown TrainConfig field(s) {unknown}")
     values = {name: _tuples(value) for name, value in data.items()}
     variant, algo = values.get("variant", "plain"), values.get("algo", "maddpg")
-    if isinstance(values.get("transform"), dict) and variant in TRANSFORM_TYPES:
-        values["transform"] = _transform_from_dict(variant, values["transform"])
-    if isinstance(values.get("learner"), dict) and algo in LEARNER_CONFIG_TYPES:
-        values["learner"] = LEARNER_CONFIG_TYPES[algo](**values["learner"])
+    if isinstance(values.get("transform"), dict):
+        values["transform"] = transform_entry(variant).from_record(values["transform"])
+    if isinstance(values.get("learner"), dict):
+        values["learner"] = learner_entry(algo).config_type(**values["learner"])
     return TrainConfig(**values)
 
 
 def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
+    """``num_envs`` environments of the run's scenario, team, episode length and layout, in
+    the learner's action space (a discrete learner's ``action_set``, if its config has one)."""
+    discrete = learner_entry(config.algo).discrete_actions
     return CCREnv(
         config.scenario,
         num_robots=config.num_robots,
         num_envs=num_envs,
         episode_length=config.episode_length,
-        discrete_actions=config.algo == "maac",
-        discrete_action_set=(config.learner_config.action_set if config.algo == "maac"
-                             else DEFAULT_DISCRETE_ACTION_SET),
+        discrete_actions=discrete,
+        discrete_action_set=(getattr(config.learner_config, "action_set",
+                                     DEFAULT_DISCRETE_ACTION_SET)
+                             if discrete else DEFAULT_DISCRETE_ACTION_SET),
         scenario_params=dict(config.scenario_params),
         layout=config.layout,
     )
 
 
 def make_learner(config: TrainConfig) -> Learner:
-    learner = config.learner_config
-    return MAAC(learner) if isinstance(learner, MAACConfig) else DDPG(learner)
+    """The run's learner, built by its registry entry from :attr:`TrainConfig.learner_config`."""
+    return learner_entry(config.algo).build(config.learner_config)
 
 
 def make_transform(config: TrainConfig) -> Transform:
+    """The run's transform: :attr:`TrainConfig.transform_config`."""
     return config.transform_config

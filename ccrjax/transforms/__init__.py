@@ -14,6 +14,7 @@ from ccrjax.transforms.ccr import (
     DangerFlags,
 )
 
+# The built-in variants (ccrjax.registry.transform_names() adds those registered elsewhere).
 VARIANTS = ("plain", "pessimistic", "ccr", "ccr_scores", "ccr_reward", "ccr_perfect",
             "danger_flags")
 

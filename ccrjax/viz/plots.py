@@ -20,8 +20,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
 from ccrjax.run.folder import METRIC_RANGES, METRIC_TITLES, replacing
-from ccrjax.run.search import REFERENCE_NAME
 from ccrjax.run.stats import mean_ci_along
+from ccrjax.run.sweep_grid import REFERENCE_NAME
 from ccrjax.viz.render import characters_per_line
 
 PALETTE = ("#1f6fd1", "#d1495b", "#2a9d8f", "#e9a03b", "#6a4c93", "#8c8c8c")
@@ -198,7 +198,7 @@ def draw_search_tradeoff(panels: dict[str, Sequence[dict]], parameter: str,
                          dpi: int = 120) -> None:
     """Danger frequency against success rate, one point per searched value with its 95%
     intervals (clipped to [0, 1]), one panel per title in ``panels`` (rows of
-    :func:`ccrjax.run.search.search_rows`). Values are told apart by colour, named once in the
+    :func:`ccrjax.run.sweep_grid.search_rows`). Values are told apart by colour, named once in the
     legend below the panels, so no label covers another. A panel named in ``choices``
     also shows the rule's decision: the values left of the dashed line (success too far
     below the reference's) are shaded as not eligible, and the chosen value is ringed."""

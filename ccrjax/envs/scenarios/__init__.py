@@ -1,4 +1,5 @@
-"""The emergency scenarios, one module each, and a registry by name."""
+"""The emergency scenarios, one module each, and their registry by name (:data:`SCENARIOS`;
+:func:`register_scenario` adds one defined elsewhere)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,24 @@ from ccrjax.envs.scenarios.turbulence import Turbulence
 SCENARIOS: dict[str, type[Scenario]] = {
     cls.name: cls for cls in (Turbulence, StrongWind, HiddenObstacle, Nominal)
 }
+
+
+def register_scenario(cls: type[Scenario], *, replace: bool = False) -> type[Scenario]:
+    """Registers a :class:`Scenario` subclass under its ``name`` (usable as a decorator);
+    a name already taken is refused unless ``replace``."""
+    if not (isinstance(cls, type) and issubclass(cls, Scenario)):
+        raise ValueError(f"a scenario must be a Scenario subclass, got {cls!r}")
+    name = getattr(cls, "name", None)
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"scenario {cls.__name__} needs a class attribute name, an "
+                         f"identifier; got {name!r}")
+    old = SCENARIOS.get(name)
+    same = old is not None and (old.__module__, old.__qualname__) == (cls.__module__,
+                                                                      cls.__qualname__)
+    if old is not None and not same and not replace:
+        raise ValueError(f"scenario {name!r} is already registered (replace=True replaces it)")
+    SCENARIOS[name] = cls
+    return cls
 
 
 def make_scenario(name: str, **params: Any) -> Scenario:
@@ -36,4 +55,5 @@ __all__ = [
     "StrongWind",
     "Turbulence",
     "make_scenario",
+    "register_scenario",
 ]

@@ -3,7 +3,7 @@ x seeds that one program trains, and the per-value summary of its results.
 
 Used by ``python -m ccrjax.sweep`` (one scenario and learner) and
 ``experiments/search.py`` (all of them, with the selection rule of
-:mod:`ccrjax.run.selection`); the summaries of per-seed values and of runs whose updates
+:mod:`experiments.selection`); the summaries of per-seed values and of runs whose updates
 went non-finite serve every experiment's grid.
 """
 
