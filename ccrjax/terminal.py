@@ -100,15 +100,13 @@ class Stop:
 
     def exit_now(self) -> None:
         """Waits for the checkpoint writes in flight, says what is kept, ends the process."""
-        if _WAITS:
-            print(f"\n{self.prog}: {self.signal_name}: stopping once the checkpoint being "
-                  "written is complete", file=sys.stderr, flush=True)
         _finish_writes()
         try:
             kept = self.kept_text()
         except Exception as error:  # noqa: BLE001 - the exit must happen whatever failed
             kept = f"(what was kept could not be listed: {error})"
-        print(f"{self.prog}: stopped by {self.signal_name}; {kept}", file=sys.stderr, flush=True)
+        print(f"\n{self.prog}: stopped by {self.signal_name}; {kept}", file=sys.stderr,
+              flush=True)
         try:
             sys.stdout.flush()
         finally:

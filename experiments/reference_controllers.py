@@ -233,7 +233,8 @@ def evaluate_controller(env: CCREnv, name: str, key: jax.Array, **params
     (snapped to the environment's discrete actions if it has them): one of
     :data:`CONTROLLERS` or of ``information_controllers.INFORMATION_CONTROLLERS``, built
     with ``params`` (the memoriser needs its height ``y_w``)."""
-    from experiments.information_controllers import INFORMATION_CONTROLLERS  # it imports this module
+    # Imported here: information_controllers imports this module.
+    from experiments.information_controllers import INFORMATION_CONTROLLERS
 
     known = {**CONTROLLERS, **INFORMATION_CONTROLLERS}
     if name not in known:

@@ -107,9 +107,9 @@ def open_folder(out: Path | None, resume: bool,
 
 
 def what_was_kept(folder: RunFolder, saved: Sequence[int]) -> str:
-    """What a stopped run leaves, and the command that continues it."""
+    """What a stopped run leaves, and the command that continues it (one line)."""
+    command = f"{TRAIN_COMMAND} --out {folder.path} --resume"
     if saved:
-        return (f"checkpoint {saved[-1]:,} is saved. Continue with:\n"
-                f"  {TRAIN_COMMAND} --out {folder.path} --resume")
-    return ("no checkpoint was written; the folder keeps its configuration. Start it again "
-            f"with the same command, or with:\n  {TRAIN_COMMAND} --out {folder.path} --resume")
+        return f"checkpoint {saved[-1]:,} is saved; continue with: {command}"
+    return ("no checkpoint was written; the folder keeps its configuration; start it again "
+            f"with the same command, or with: {command}")
