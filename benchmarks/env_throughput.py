@@ -1,4 +1,4 @@
-"""Environment throughput: env-steps per second of the full ``CCREnv.step``.
+"""Environment throughput: env-steps per second of the full ``EmergencyEnv.step``.
 
 Every scenario and batch size runs ``--steps`` steps of uniformly random
 continuous actions in ``[-1, 1]`` inside one jitted ``lax.scan`` (actions drawn
@@ -29,7 +29,7 @@ import jax
 # Runs from a checkout without installing: make the repository importable.
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv, random_actions  # noqa: E402
+from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, EmergencyEnv, random_actions  # noqa: E402
 from ccrjax.envs.scenarios import SCENARIOS  # noqa: E402
 from ccrjax.run.folder import git_commit  # noqa: E402
 
@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def make_rollout(
-    env: CCREnv, steps: int, sampler: str = "ccrjax"
+    env: EmergencyEnv, steps: int, sampler: str = "ccrjax"
 ) -> Callable[[Any, jax.Array], Any]:
     """A jitted ``(state, key) -> state`` running ``steps`` random steps in one scan.
 
@@ -110,7 +110,7 @@ def measure(
     scenario: str, robots: int, envs: int, steps: int, repeats: int, sampler: str = "ccrjax"
 ) -> dict[str, Any]:
     """Times ``repeats`` rollouts after a compile-and-warm-up run; returns the result row."""
-    env = CCREnv(scenario, num_robots=robots, num_envs=envs)
+    env = EmergencyEnv(scenario, num_robots=robots, num_envs=envs)
     rollout = make_rollout(env, steps, sampler)
     key = jax.random.key(0)
     key, reset_key = jax.random.split(key)

@@ -113,7 +113,7 @@ def read_layout(config: TrainConfig) -> Layout:
         example=example,
         steps=config.episode_length,
         envs=config.num_envs,
-        batch=config.learner_config.batch_size,
+        batch=config.resolved_learner.batch_size,
         default_capacity=config.replay_capacity,
     )
 

@@ -104,7 +104,7 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
         median = statistics.median(times[variant])
         updates = iterations * config.updates_per_iteration
         flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
-        settings = config.learner_config
+        settings = config.resolved_learner
         rows.append({
             "algo": algo,
             "variant": variant,

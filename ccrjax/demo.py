@@ -24,9 +24,10 @@ from typing import NoReturn
 
 import jax
 
-from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, CCREnv
+from ccrjax.envs.env import MAX_ROBOTS, MIN_ROBOTS, EmergencyEnv
 from ccrjax.envs.scenarios import SCENARIOS
-from ccrjax.viz.render import EpisodeRecord, animate_episode, draw_episode, record_episode
+from ccrjax.viz.record import EpisodeRecord, record_episode
+from ccrjax.viz.render import animate_episode, draw_episode
 
 # The order in which scenarios are run and printed.
 DEMO_SCENARIOS = tuple(SCENARIOS)
@@ -120,7 +121,7 @@ def _main(argv: Sequence[str] | None) -> int:
     with ThreadPoolExecutor(max_workers=1) as painter:
         drawings = []
         for name, key in zip(DEMO_SCENARIOS, keys, strict=True):
-            env = CCREnv(name, num_robots=args.robots, num_envs=1, episode_length=args.steps)
+            env = EmergencyEnv(name, num_robots=args.robots, num_envs=1, episode_length=args.steps)
             record = record_episode(env, random_policy, key,
                                     caption="random actions (an untrained team)")
             drawings.append(painter.submit(draw, name, record))

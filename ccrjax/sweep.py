@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def check_out(out: Path, force: bool) -> None:
+def check_sweep_out(out: Path, force: bool) -> None:
     """Refuses, before anything compiles, an ``--out`` that is a file, that holds other
     files than a sweep's, or that already holds a sweep (unless ``force``), then creates
     the folder, so that no training ends in a folder its results cannot be written to."""
@@ -116,7 +116,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         raise UsageError("--values repeats " + ", ".join(f"{v:g}" for v in repeated)
                          + ": give each value once")
     values = sorted(float(v) for v in values)
-    check_out(args.out, args.force)
+    check_sweep_out(args.out, args.force)
     seeds = [args.seed_offset + k for k in range(args.seeds)]
     commit = git_commit()  # the code that trains is the code loaded now
     name, grid_seeds, grid_values = search_grid(config, values, seeds)

@@ -262,19 +262,19 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     train = dataclasses.replace(train, **fields)
     if learner:
         train = dataclasses.replace(train, learner=dataclasses.replace(
-            train.learner_config, **learner))
+            train.resolved_learner, **learner))
     if own:
         train = dataclasses.replace(train, transform=dataclasses.replace(
-            train.transform_config, **own))
+            train.resolved_transform, **own))
     if args.penalty is not None:
         train = dataclasses.replace(train, transform=Pessimistic(penalty=args.penalty))
     if ccr:
-        transform = train.transform_config  # CCR or one of its parts, or DangerFlags
+        transform = train.resolved_transform  # CCR or one of its parts, or DangerFlags
         transform = (type(transform)(dataclasses.replace(transform.config, **ccr))
                      if isinstance(transform, CCR) else dataclasses.replace(transform, **ccr))
         train = dataclasses.replace(train, transform=transform)
-    train = dataclasses.replace(train, learner=train.learner_config,
-                                transform=train.transform_config,
+    train = dataclasses.replace(train, learner=train.resolved_learner,
+                                transform=train.resolved_transform,
                                 total_env_steps=train.budget)
 
     run_fields = {field: getattr(args, field) for _, field, _ in SPEC_OPTIONS

@@ -65,7 +65,7 @@ from experiments.ledger import (
     PARTS,
     STOPPED_KEPT,
     Partial,
-    Progress,
+    ProgramProgress,
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
@@ -92,10 +92,10 @@ from experiments.ledger import (
     train_part_programs,
     training_record,
 )
-from experiments.paper import SCENARIOS
+from experiments.paper import PAPER_SCENARIOS
 
 PROG = "python experiments/budgets.py"
-ALL_SCENARIOS = (*SCENARIOS, "nominal")
+ALL_SCENARIOS = (*PAPER_SCENARIOS, "nominal")
 CANDIDATE_EVERY = 250_000
 QUICK_CANDIDATE_EVERY = 200
 # The longer-budget check (docs/protocol.md, amendment of 2026-11-26): the plain learners on
@@ -219,7 +219,7 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
     train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds)]
     log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
         f"{len(train)} to train ({len(seeds)} runs each, on {device_name()})")
-    progress = Progress([(part_path(out, f"{s}-{a}", seeds).stem, a,
+    progress = ProgramProgress([(part_path(out, f"{s}-{a}", seeds).stem, a,
                           len(seeds) * settings.budget(a)) for s, a in train])
     trained = part_settings(settings, seeds)
     train_part_programs(train, out, seeds, (), progress, partial, ledger,
@@ -285,7 +285,7 @@ def rule_lines(result: dict[str, Any]) -> list[str]:
                          f"({check['last'] - check['previous']:+.2f})")
         lines.append(f"| {cell['algo']} | {cell['scenario']} | " + " | ".join(shown) + " |")
     made = {(cell["scenario"], cell["algo"]) for cell in cells}
-    wanted = {(s, a) for s in SCENARIOS for a in ALGOS}
+    wanted = {(s, a) for s in PAPER_SCENARIOS for a in ALGOS}
     lines.append("")
     if not wanted <= made:
         lines.append(f"One budget for all (the smallest candidate at which every plain "
@@ -370,7 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners (default: all three)")
     parser.add_argument("--scenarios", nargs="+", choices=ALL_SCENARIOS,
-                        default=list(SCENARIOS), help="scenarios (default: the paper's three)")
+                        default=list(PAPER_SCENARIOS),
+                        help="scenarios (default: the paper's three)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per seed for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()})")

@@ -55,7 +55,7 @@ from typing import Any
 import jax
 
 from ccrjax import cli
-from ccrjax.envs.env import ROBOT_RADIUS, CCREnv
+from ccrjax.envs.env import ROBOT_RADIUS, EmergencyEnv
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.run.folder import git_commit, write_atomic
 from experiments import regimes
@@ -92,7 +92,7 @@ def measure(scenario: str, controller: str, episodes: int, seed: int,
             ) -> dict[str, float]:
     """One controller's metrics over ``episodes`` episodes of one scenario, with continuous
     actions or snapped to the discrete ``action_set``."""
-    env = CCREnv(scenario, num_envs=episodes, scenario_params=params,
+    env = EmergencyEnv(scenario, num_envs=episodes, scenario_params=params,
                  discrete_actions=action_set is not None,
                  discrete_action_set=action_set or DEFAULT_DISCRETE_ACTION_SET)
     metrics = jax.jit(lambda key: evaluate_controller(env, controller, key))(

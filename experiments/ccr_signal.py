@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ccrjax import cli
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.acting import run_episode
@@ -126,7 +126,7 @@ def trained_policy(scenario: str, algo: str, steps: int, seed: int):
 def measure(scenario: str, controller: str, episodes: int, warmup: int,
             seed: int, trained: str | None = None, train_steps: int = 0) -> dict[str, Any]:
     """The score distributions and the intrinsic reward's share near danger, one scenario."""
-    env = CCREnv(scenario, num_envs=episodes)
+    env = EmergencyEnv(scenario, num_envs=episodes)
     transform = CCR()
     window = transform.config.window
     learner_act, evaluation = None, None

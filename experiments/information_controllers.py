@@ -56,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ccrjax.checks import check_finite, check_int
-from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.env import EmergencyEnv, WorldState
 from ccrjax.training.acting import StatefulController
 from ccrjax.transforms.ccr import CCRConfig
 from experiments.reference_controllers import (
@@ -114,7 +114,7 @@ def go_round(position: jax.Array, target: jax.Array, centre: jax.Array, half: ja
     return blocked, _unit(aim - position)
 
 
-def _kind(env: CCREnv) -> str:
+def _kind(env: EmergencyEnv) -> str:
     """What a robot can sense of the scenario's hazard: ``area``, ``touch`` or ``none``."""
     return {4: "area", 1: "touch", 0: "none"}[env.scenario.hazard_feature_size]
 
@@ -136,7 +136,7 @@ def _self_init(world: WorldState) -> SelfMemory:
                       side=zeros)
 
 
-def _self_step(env: CCREnv, world: WorldState, memory: SelfMemory
+def _self_step(env: EmergencyEnv, world: WorldState, memory: SelfMemory
                ) -> tuple[SelfMemory, jax.Array, jax.Array, jax.Array]:
     """Senses (the robot's own hazard features only), updates the memory, and returns it
     with the self-reactive command ``[N, 2, B]``, whether that command is a reaction
@@ -168,7 +168,7 @@ def _self_step(env: CCREnv, world: WorldState, memory: SelfMemory
     return memory, jnp.where(pressed[:, None], slide, home), pressed, memory.known
 
 
-def self_reactive(env: CCREnv) -> StatefulController:
+def self_reactive(env: EmergencyEnv) -> StatefulController:
     """Reacts only to what the robot senses itself (module docstring)."""
 
     def act(world: WorldState, memory: SelfMemory, key: jax.Array):
@@ -192,7 +192,7 @@ class TeamMemory(NamedTuple):
 NEVER = 1_000_000  # the age of a warning never received
 
 
-def team_informed(env: CCREnv, comm_range: float | None = None, memory: int | None = None,
+def team_informed(env: EmergencyEnv, comm_range: float | None = None, memory: int | None = None,
                   warning_radius: float = WARNING_RADIUS) -> StatefulController:
     """``self_reactive`` plus detours round teammates' recent dangers in range (module
     docstring). ``comm_range`` (default CCR's, ``CCRConfig().comm_range``) must lie in
@@ -245,7 +245,7 @@ def team_informed(env: CCREnv, comm_range: float | None = None, memory: int | No
     return StatefulController(init=init, act=act)
 
 
-def memoriser(env: CCREnv, y_w: float | jax.Array) -> Controller:
+def memoriser(env: EmergencyEnv, y_w: float | jax.Array) -> Controller:
     """The one fixed detour: every robot to ``(x_w, y_w + its slot's offset)``, ``x_w`` the
     centre of the hazard x range, then to its target. ``y_w``: a number, or ``[B]`` (one
     per environment), possibly traced."""
@@ -264,7 +264,7 @@ def memoriser(env: CCREnv, y_w: float | jax.Array) -> Controller:
     return act
 
 
-def memoriser_heights(env: CCREnv) -> np.ndarray:
+def memoriser_heights(env: EmergencyEnv) -> np.ndarray:
     """The grid of waypoint heights: every ``MEMORISER_HEIGHT_STEP`` from the mid-line, as
     far as the whole team's waypoints (``y_w`` plus the target slots' offsets) keep its
     discs inside the arena (up to 1.6 with 5 robots in today's arena)."""

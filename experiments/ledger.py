@@ -278,7 +278,7 @@ def overlapping_part(settings: Any, out: Path, grid_values: tuple[Any, ...] = (N
 
 
 def train_part_programs(pairs: list[tuple[str, str]], out: Path, seeds: tuple[int, ...],
-                        values: tuple[float, ...], progress: Progress, partial: Partial,
+                        values: tuple[float, ...], progress: ProgramProgress, partial: Partial,
                         ledger: Ledger, train_part: Callable[[str, str, str], dict[str, Any]]
                         ) -> None:
     """Trains the part on ``seeds`` (and ``values``) of each (scenario, algo) in ``pairs``
@@ -346,10 +346,10 @@ def training_record(config: TrainConfig) -> dict[str, Any]:
     the transform's (less :data:`SEARCHED_FIELDS`). Each new cell stores it, so that a cell
     made before one of these changed is trained again, never mixed with newer ones."""
     env = make_env(config, 1)
-    transform = dataclasses.asdict(config.transform_config)
+    transform = dataclasses.asdict(config.resolved_transform)
     transform = transform.get("config", transform)  # CCR's parameters live in its config
     record = {
-        "learner": dataclasses.asdict(config.learner_config),
+        "learner": dataclasses.asdict(config.resolved_learner),
         "num_robots": config.num_robots, "episode_length": config.episode_length,
         "num_envs": config.num_envs, "learning_starts": config.learning_starts,
         "transform": {k: v for k, v in transform.items() if k not in SEARCHED_FIELDS},
@@ -516,7 +516,7 @@ def cell_path(out: Path, scenario: str, algo: str) -> Path:
 
 
 def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
-               ) -> tuple[dict[tuple[str, str], dict], list[tuple[str, str]], Progress]:
+               ) -> tuple[dict[tuple[str, str], dict], list[tuple[str, str]], ProgramProgress]:
     """The cells already made with ``settings`` (a dataclass with ``scenarios``, ``algos``,
     ``steps`` and ``budget(algo)``) by (scenario, algo), the pairs still to train (``runs``
     runs of ``budget(algo)`` steps each, described by ``runs_text``), and their progress."""
@@ -531,13 +531,13 @@ def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
             todo.append((scenario, algo))
     log(f"{len(pairs) - len(todo)} of {len(pairs)} programs already done; {len(todo)} to train "
         f"({runs_text}, on {device_name()})")
-    progress = Progress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
+    progress = ProgramProgress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
     (out / "cells").mkdir(parents=True, exist_ok=True)
     return cells, todo, progress
 
 
 def train_pairs(todo: list[tuple[str, str]], out: Path, partial: Partial, ledger: Ledger,
-                progress: Progress, train_cell: Callable[[str, str], dict[str, Any]]
+                progress: ProgramProgress, train_cell: Callable[[str, str], dict[str, Any]]
                 ) -> Iterator[tuple[tuple[str, str], dict[str, Any]]]:
     """Trains the program of each (scenario, algo) in ``todo`` with ``train_cell``, writes
     its cell, drops its checkpoint, records the invocation's progress and logs it; yields
@@ -697,8 +697,8 @@ def invocation_line(run: dict[str, Any], programs: int | None = None) -> str:
     return head + "stopped before the end, before its first program finished"
 
 
-class Progress:
-    """Progress across programs of unequal cost, with an estimate of the time left.
+class ProgramProgress:
+    """ProgramProgress across programs of unequal cost, with an estimate of the time left.
 
     Each program has a cost in work units (runs x environment steps) and a kind (its
     learner); the seconds per unit of a kind are measured on its programs so far (else

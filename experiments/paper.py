@@ -9,7 +9,7 @@ experiments print them beside ours; nothing in ccrjax is tuned to them except th
 
 from __future__ import annotations
 
-SCENARIOS = ("hidden_obstacle", "turbulence", "strong_wind")  # the paper's column order
+PAPER_SCENARIOS = ("hidden_obstacle", "turbulence", "strong_wind")  # the paper's column order
 
 _PAPER_ROWS = {
     "danger_frequency": {
@@ -38,7 +38,7 @@ _PAPER_ROWS = {
 PAPER = {
     metric: {(scenario, algo, variant): values[k] / 100.0
              for (algo, variant), values in rows.items()
-             for k, scenario in enumerate(SCENARIOS)}
+             for k, scenario in enumerate(PAPER_SCENARIOS)}
     for metric, rows in _PAPER_ROWS.items()
 }
 PAPER_HEADLINES = {

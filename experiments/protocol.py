@@ -14,7 +14,7 @@ from typing import Any
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.training import ALGOS, TrainConfig
-from experiments.paper import SCENARIOS
+from experiments.paper import PAPER_SCENARIOS
 from experiments.selection import SelectionRule
 
 # Seeds: the tables' seeds never select a hyperparameter and never choose a budget.
@@ -103,7 +103,7 @@ class Settings:
     quick: bool = False  # tiny sizes (:func:`quick`): the pipeline, not the learning
     # Which programs an invocation trains, not what a cell holds (ledger.NOT_IN_CELLS):
     # a grid can be split over invocations.
-    scenarios: tuple[str, ...] = SCENARIOS
+    scenarios: tuple[str, ...] = PAPER_SCENARIOS
     algos: tuple[str, ...] = ALGOS
 
     def budget(self, algo: str) -> int:

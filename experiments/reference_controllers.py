@@ -32,7 +32,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.env import EmergencyEnv, WorldState
 from ccrjax.envs.world import DISCRETE_ACTION_SETS
 from ccrjax.training.acting import StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
@@ -50,7 +50,7 @@ def _pd(position: jax.Array, velocity: jax.Array, aim: jax.Array) -> jax.Array:
     return jnp.clip(KP * (aim - position) - KD * velocity, -1.0, 1.0)
 
 
-def go_to_goal(env: CCREnv) -> Controller:
+def go_to_goal(env: EmergencyEnv) -> Controller:
     """Hazard-blind: every robot straight to its own target."""
     del env
 
@@ -99,7 +99,7 @@ def _segment_hits_circle(start, end, centre, radius):
     return jnp.sum(gap * gap, axis=1) < radius * radius
 
 
-def oracle(env: CCREnv) -> Controller:
+def oracle(env: EmergencyEnv) -> Controller:
     """Knows the hazard; goes around it, ``CLEARANCE`` away from its boundary.
 
     While the straight line to its target meets the hazard grown by the margin, a
@@ -149,7 +149,7 @@ def oracle(env: CCREnv) -> Controller:
     return act
 
 
-def stand_still(env: CCREnv) -> Controller:
+def stand_still(env: EmergencyEnv) -> Controller:
     """Gaming: never moves (never in danger, never arrives)."""
     del env
 
@@ -160,7 +160,7 @@ def stand_still(env: CCREnv) -> Controller:
     return act
 
 
-def _fixed_x_away_in_y(env: CCREnv, along: float) -> Controller:
+def _fixed_x_away_in_y(env: EmergencyEnv, along: float) -> Controller:
     """Action ``along`` on x, full action away from the mid-line on y."""
 
     def act(world: WorldState, key: jax.Array) -> jax.Array:
@@ -171,12 +171,12 @@ def _fixed_x_away_in_y(env: CCREnv, along: float) -> Controller:
     return act
 
 
-def flee_sideways(env: CCREnv) -> Controller:
+def flee_sideways(env: EmergencyEnv) -> Controller:
     """Gaming: full speed away from the mid-line, never towards the target."""
     return _fixed_x_away_in_y(env, 0.0)
 
 
-def overshoot(env: CCREnv) -> Controller:
+def overshoot(env: EmergencyEnv) -> Controller:
     """Gaming: the constant action (1, 0), full speed along the way forever."""
     del env
 
@@ -188,12 +188,12 @@ def overshoot(env: CCREnv) -> Controller:
     return act
 
 
-def dash_away(env: CCREnv) -> Controller:
+def dash_away(env: EmergencyEnv) -> Controller:
     """Gaming: full speed along the way while steering away from the mid-line."""
     return _fixed_x_away_in_y(env, 1.0)
 
 
-CONTROLLERS: dict[str, Callable[[CCREnv], Controller]] = {
+CONTROLLERS: dict[str, Callable[[EmergencyEnv], Controller]] = {
     "go_to_goal": go_to_goal,
     "oracle": oracle,
     "stand_still": stand_still,
@@ -227,7 +227,7 @@ def snap_to_action_set(controller: Controller | StatefulController, action_set: 
     return act
 
 
-def evaluate_controller(env: CCREnv, name: str, key: jax.Array, **params
+def evaluate_controller(env: EmergencyEnv, name: str, key: jax.Array, **params
                         ) -> dict[str, jax.Array]:
     """The learners' evaluation metrics of controller ``name`` over ``env.num_envs`` episodes
     (snapped to the environment's discrete actions if it has them): one of

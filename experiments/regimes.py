@@ -55,7 +55,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ccrjax.envs.env import ROBOT_RADIUS, CCREnv
+from ccrjax.envs.env import ROBOT_RADIUS, EmergencyEnv
 from ccrjax.envs.scenarios import Layout
 from ccrjax.training.acting import Episode, episode_metrics, run_episode
 from ccrjax.transforms import Plain
@@ -115,7 +115,7 @@ def choose_length(layout: Layout, episodes: int, seed: int) -> dict[str, int]:
     """The episode length of a formation (module docstring), from one go-to-goal run of
     :data:`LENGTH_PROBE` steps on ``nominal`` (the controller ignores the clock, so step
     ``t`` of a long episode is step ``t`` of any longer than ``t``)."""
-    env = CCREnv("nominal", num_robots=NUM_ROBOTS, num_envs=episodes, layout=layout,
+    env = EmergencyEnv("nominal", num_robots=NUM_ROBOTS, num_envs=episodes, layout=layout,
                  episode_length=LENGTH_PROBE)
     transform = Plain()
     success = jax.jit(lambda key: jnp.mean(run_episode(
@@ -146,14 +146,14 @@ def regime_program(scenario: str, layout: Layout, episode_length: int, episodes:
     ``eval_key``, go-to-goal's per-step danger and positions, and the memoriser's
     selection on ``select_episodes`` episodes of ``select_key`` (every height of
     ``heights`` and the oracle on the same episodes) with the chosen index."""
-    def env_of(batch: int) -> CCREnv:
-        return CCREnv(scenario, num_robots=NUM_ROBOTS, num_envs=batch, layout=layout,
+    def env_of(batch: int) -> EmergencyEnv:
+        return EmergencyEnv(scenario, num_robots=NUM_ROBOTS, num_envs=batch, layout=layout,
                       episode_length=episode_length)
 
     evaluation, selection = env_of(len(ROWS) * episodes), env_of(select_episodes)
     transform = Plain()
 
-    def play(env: CCREnv, controller, key: jax.Array) -> Episode:
+    def play(env: EmergencyEnv, controller, key: jax.Array) -> Episode:
         return run_episode(env, transform, transform.init(env), None, False, key,
                            controller=controller)[1]
 
@@ -294,7 +294,8 @@ def measure_grid(episodes: int, seed: int, selection_seed: int, select_episodes:
                 layout = regime_layout(placement, formation, spacing)
                 length = lengths[name]["episode_length"]
                 try:
-                    CCREnv(scenario, num_robots=NUM_ROBOTS, layout=layout, episode_length=length)
+                    EmergencyEnv(scenario, num_robots=NUM_ROBOTS, layout=layout,
+                                 episode_length=length)
                 except ValueError as error:
                     refused.append({"scenario": scenario, "placement": placement,
                                     "formation": name, "reason": str(error)})

@@ -75,7 +75,7 @@ from experiments.ledger import (
     PARTS,
     STOPPED_KEPT,
     Partial,
-    Progress,
+    ProgramProgress,
     add_checkpoint_option,
     add_no_train_option,
     add_out_options,
@@ -104,7 +104,7 @@ from experiments.ledger import (
     train_part_programs,
     training_record,
 )
-from experiments.paper import SCENARIOS
+from experiments.paper import PAPER_SCENARIOS
 from experiments.selection import select
 
 PROG = "python experiments/search.py"
@@ -251,7 +251,7 @@ def not_the_protocols(settings: Settings) -> str | None:
     ones (:data:`protocol.LONGER_BUDGETS`). Such a selection is provisional: the tables
     refuse it."""
     _, values = protocol.SEARCHED[settings.variant]
-    left_out = [f"{s}-{a}" for s in SCENARIOS for a in ALGOS
+    left_out = [f"{s}-{a}" for s in PAPER_SCENARIOS for a in ALGOS
                 if s not in settings.scenarios or a not in settings.algos]
     reasons = [
         *(["the quick mode"] if settings.quick else []),
@@ -381,7 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()})")
-    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+    parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
+                        default=list(PAPER_SCENARIOS),
                         help="scenarios (default: all three)")
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners (default: all three)")
@@ -439,7 +440,7 @@ def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
     train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds, values)]
     log(f"{len(todo) - len(train)} of {len(todo)} parts on {what} already made; "
         f"{len(train)} to train ({runs} runs each)")
-    progress = Progress([(part_path(out, f"{s}-{a}", seeds, values).stem, a,
+    progress = ProgramProgress([(part_path(out, f"{s}-{a}", seeds, values).stem, a,
                           runs * settings.budget(a)) for s, a in train])
     trained = dataclasses.replace(part_settings(settings, seeds), part_values=())
     train_part_programs(train, out, seeds, values, progress, partial, ledger,

@@ -55,7 +55,7 @@ iteration whose updates went non-finite per seed (-1: none; such a run is kept, 
 updates skipped, and named in ``tables.md``), the behaviour measurements, and the
 program's wall time, device and commit. A re-run skips the cells
 made with the same settings. Every invocation is recorded in ``<out>/invocations.json``
-(:mod:`ledger`). Progress lines estimate the time left across programs. Then:
+(:mod:`ledger`). ProgramProgress lines estimate the time left across programs. Then:
 
 * ``tables.md`` and ``tables.json``: Tables I and II in the paper's layout with the
   reference controllers' rows (go-to-goal, oracle), the final distance, the hazard
@@ -125,14 +125,15 @@ from ccrjax.viz.plots import (
     draw_obstacle_distances,
     draw_progress_matched,
 )
-from ccrjax.viz.render import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, draw_episode
+from ccrjax.viz.record import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord
+from ccrjax.viz.render import draw_episode
 from experiments import protocol
 from experiments.ledger import (
     RESULTS,
     STOPPED_KEPT,
     Ledger,
     Partial,
-    Progress,
+    ProgramProgress,
     add_checkpoint_option,
     add_no_train_option,
     add_out_options,
@@ -158,7 +159,7 @@ from experiments.ledger import (
     settings_record,
     training_record,
 )
-from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, SCENARIOS
+from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, PAPER_SCENARIOS
 from experiments.reference_controllers import evaluate_controller
 
 PROG = "python experiments/tables.py"
@@ -208,7 +209,7 @@ class Job:
         return f"{self.scenario}-{self.algo}-{'+'.join(self.variants)}"
 
 
-def cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
+def variant_cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
     return out / "cells" / f"{cell_stem(scenario, algo, variant)}.json"
 
 
@@ -277,7 +278,7 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
 
 def grid_jobs() -> list[Job]:
     """The whole grid's 18 programs."""
-    return [Job(scenario, algo, variants) for scenario in SCENARIOS for algo in ALGOS
+    return [Job(scenario, algo, variants) for scenario in PAPER_SCENARIOS for algo in ALGOS
             for variants in (("plain", "pessimistic"), ("ccr",))]
 
 
@@ -289,7 +290,7 @@ def jobs_of(settings: Settings) -> list[Job]:
 
 def job_cells(out: Path, job: Job, settings: Settings) -> dict[str, dict] | None:
     """A program's cells in ``out`` by variant, if all were made with ``settings``."""
-    found = [read_cell(cell_path(out, job.scenario, job.algo, v), settings)
+    found = [read_cell(variant_cell_path(out, job.scenario, job.algo, v), settings)
              for v in job.variants]
     return dict(zip(job.variants, found, strict=True)) if all(found) else None
 
@@ -365,7 +366,7 @@ def join_parts_of(jobs: list[Job], settings: Settings, out: Path) -> None:
                 made = sorted(seed for part in parts for seed in part["seeds"])
                 log(f"{stem}: parts made on seeds {made} of {list(settings.seeds)}")
                 continue
-            write_atomic(cell_path(out, job.scenario, job.algo, variant),
+            write_atomic(variant_cell_path(out, job.scenario, job.algo, variant),
                          json.dumps(cell) + "\n")
             discard_parts(out, stem, parts)
             log(f"{stem}: joined from {len(parts)} parts into its cell")
@@ -389,7 +390,7 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) ->
     else:
         log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
             f"train ({len(seeds)} seeds per cell, {budgets})")
-    progress = Progress([(job.name, job.algo,
+    progress = ProgramProgress([(job.name, job.algo,
                           len(job.variants) * len(seeds) * settings.budget(job.algo))
                          for job in todo])
     (out / "cells").mkdir(parents=True, exist_ok=True)
@@ -409,7 +410,7 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) ->
             for variant, cell in cells_of(job, runs, trained).items():
                 path = (part_path(out, cell_stem(job.scenario, job.algo, variant), seeds)
                         if settings.part_seeds else
-                        cell_path(out, job.scenario, job.algo, variant))
+                        variant_cell_path(out, job.scenario, job.algo, variant))
                 path.parent.mkdir(exist_ok=True)
                 write_atomic(path, json.dumps(cell) + "\n")
             partial.discard(name)
@@ -426,7 +427,7 @@ def reference_rows(settings: Settings) -> dict[tuple[str, str], dict[str, float]
     ``controller_episodes`` fresh episodes (no training, no seeds)."""
     rows = {}
     key = jax.random.PRNGKey(2**30 + 12)
-    for scenario in SCENARIOS:
+    for scenario in PAPER_SCENARIOS:
         env = make_env(settings.config(scenario, "maddpg", "plain"),
                        settings.controller_episodes)
         for name in CONTROLLERS:
@@ -443,17 +444,17 @@ def stats(values: list[float], metric: str) -> dict[str, Any]:
 # The paper's averaged relative changes: (metric, new, base, sign, scenarios), the average
 # over those scenarios' scenario x learner pairs (sign -1: a reduction).
 HEADLINES = {
-    "danger_reduction_vs_plain": ("danger_frequency", "ccr", "plain", -1.0, SCENARIOS),
+    "danger_reduction_vs_plain": ("danger_frequency", "ccr", "plain", -1.0, PAPER_SCENARIOS),
     "danger_reduction_vs_pessimistic": ("danger_frequency", "ccr", "pessimistic", -1.0,
-                                        SCENARIOS),
-    "success_change_vs_pessimistic": ("success_rate", "ccr", "pessimistic", 1.0, SCENARIOS),
+                                        PAPER_SCENARIOS),
+    "success_change_vs_pessimistic": ("success_rate", "ccr", "pessimistic", 1.0, PAPER_SCENARIOS),
     "success_change_vs_plain_turbulence": ("success_rate", "ccr", "plain", 1.0,
                                            ("turbulence",)),
 }
 
 
 def headline(cells, metric: str, new: str, base: str, sign: float,
-             scenarios: tuple[str, ...] = SCENARIOS, resamples: int = 2000,
+             scenarios: tuple[str, ...] = PAPER_SCENARIOS, resamples: int = 2000,
              seed: int = 0) -> dict[str, Any]:
     """The paper's averaged relative change over the ``scenarios``' scenario x learner
     pairs (:func:`ccrjax.run.stats.mean_relative_change`), with the pairs named."""
@@ -479,7 +480,7 @@ def obstacle_distance_ratio(cells) -> dict[str, Any]:
 def welch_marks(cells) -> dict[tuple[str, str, str, str], dict]:
     """Welch tests of CCR against plain and pessimistic, per cell and metric."""
     marks = {}
-    for scenario in SCENARIOS:
+    for scenario in PAPER_SCENARIOS:
         for algo in ALGOS:
             ccr = cells[(scenario, algo, "ccr")]["final"]
             for base in ("plain", "pessimistic"):
@@ -494,7 +495,7 @@ def claims(cells, marks) -> dict[str, Any]:
     result: dict[str, Any] = {}
     for base in ("plain", "pessimistic"):
         lower, significant, detail = 0, 0, []
-        for scenario in SCENARIOS:
+        for scenario in PAPER_SCENARIOS:
             for algo in ALGOS:
                 ccr = float(np.mean(cells[(scenario, algo, "ccr")]["final"]["danger_frequency"]))
                 other = float(np.mean(cells[(scenario, algo, base)]["final"]["danger_frequency"]))
@@ -537,7 +538,7 @@ def aggregates(cells, resamples: int = 2000) -> dict[str, Any]:
     """rliable over the 9 scenario x learner pairs (tasks), seeds as runs: each variant's
     IQM of danger and of success, and the probability that CCR improves on each baseline
     (lower danger, higher success)."""
-    pairs = [(s, a) for s in SCENARIOS for a in ALGOS]
+    pairs = [(s, a) for s in PAPER_SCENARIOS for a in ALGOS]
     result: dict[str, Any] = {}
     for metric, sign in (("danger_frequency", -1.0), ("success_rate", 1.0)):
         scores = {v: np.array([cells[(s, a, v)]["final"][metric] for s, a in pairs]).T
@@ -568,7 +569,7 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
     """Everything ``tables.json`` holds."""
     marks = welch_marks(cells)
     records = []
-    for scenario in SCENARIOS:
+    for scenario in PAPER_SCENARIOS:
         for algo in ALGOS:
             for variant in VARIANTS:
                 cell = cells[(scenario, algo, variant)]
@@ -652,19 +653,19 @@ def _cell_text(record_metric: dict, percent: bool, digits: int = 2) -> str:
 def table(result: dict, metric: str, title: str, percent: bool, digits: int = 2) -> list[str]:
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
     controllers = {(c["scenario"], c["controller"]): c for c in result["controllers"]}
-    header = "| | " + " | ".join(SCENARIO_NAMES[s] for s in SCENARIOS) + " |"
-    lines = [f"### {title}", "", header, "|---|" + "---|" * len(SCENARIOS)]
+    header = "| | " + " | ".join(SCENARIO_NAMES[s] for s in PAPER_SCENARIOS) + " |"
+    lines = [f"### {title}", "", header, "|---|" + "---|" * len(PAPER_SCENARIOS)]
     for name, label in CONTROLLERS.items():
-        if metric not in controllers[(SCENARIOS[0], name)]:
+        if metric not in controllers[(PAPER_SCENARIOS[0], name)]:
             continue  # a training count: the controllers do not train
         scale, unit = (100.0, "%") if percent else (1.0, "")
         lines.append(f"| {label} | " + " | ".join(
-            f"{controllers[(s, name)][metric] * scale:.2f}{unit}" for s in SCENARIOS) + " |")
+            f"{controllers[(s, name)][metric] * scale:.2f}{unit}" for s in PAPER_SCENARIOS) + " |")
     for algo in ALGOS:
         for variant in VARIANTS:
             name = LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant]
             cells = [_cell_text(by_key[(s, algo, variant)][metric], percent, digits)
-                     for s in SCENARIOS]
+                     for s in PAPER_SCENARIOS]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines + [""]
 
@@ -892,7 +893,7 @@ def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
     """The tables' figures from the cells (``quick``: every title says the quick mode)."""
     note = protocol.QUICK_FIGURE if quick else ""
     written = []
-    for scenario in SCENARIOS:
+    for scenario in PAPER_SCENARIOS:
         panels = {}
         for algo in ALGOS:
             panels[LEARNER_NAMES[algo]] = {
@@ -905,7 +906,7 @@ def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
                               "behaviour frequency against return along training")
         written.append(path)
     metrics = ("return", "danger_frequency", "success_rate", "learning_danger_steps")
-    for scenario in SCENARIOS:
+    for scenario in PAPER_SCENARIOS:
         for algo in ALGOS:
             curves = Curves()
             for variant in VARIANTS:
@@ -1001,7 +1002,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "penalty-sweep` write runs/search; with --quick the default is "
                         "lambda 30 and penalty 1, and a named folder gives its quick "
                         "searches' provisional choices)")
-    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+    parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
+                        default=list(PAPER_SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
                         "tables are written once all 18 programs exist)")
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
@@ -1101,7 +1103,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.no_train:
             cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings)
                      for variant in job.variants]
-            refuse_untrained({cell_stem(*cell): cell_path(out, *cell) for cell in cells},
+            refuse_untrained({cell_stem(*cell): variant_cell_path(out, *cell) for cell in cells},
                              settings_record(settings), out,
                              "--part-seeds" if settings.part_seeds else "")
         return settings
@@ -1116,7 +1118,7 @@ def main(argv: list[str] | None = None) -> int:
               f"(missing: {', '.join(missing)}): run again naming the others, or all")
         return 0
     controllers = reference_rows(settings)
-    whole = dataclasses.replace(settings, scenarios=SCENARIOS, algos=ALGOS)  # all 18 exist
+    whole = dataclasses.replace(settings, scenarios=PAPER_SCENARIOS, algos=ALGOS)  # all 18 exist
     result = summary(cells, whole, ledger.invocations, controllers, sources)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))

@@ -17,7 +17,7 @@ import pytest
 from brax.envs.base import State
 
 from ccrjax.agents.ddpg import DDPGConfig
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.acting import run_episode, to_batch_major_obs, to_env_action
 from ccrjax.transforms.ccr import (
@@ -198,7 +198,7 @@ def fitted_rollouts():
     and its raw scores (window m = 0)."""
     results = {}
     for scenario in ("nominal", "turbulence", "strong_wind", "hidden_obstacle"):
-        env = CCREnv(scenario, num_envs=FIT_ENVS, episode_length=FIT_LENGTH)
+        env = EmergencyEnv(scenario, num_envs=FIT_ENVS, episode_length=FIT_LENGTH)
         transform = CCR(CCRConfig(window=0))
         state = transform.init(env)
         episode_fn = jax.jit(
@@ -266,7 +266,7 @@ def fake_state(position, velocity, num_envs=4):
 
 
 def test_rolling_mean_restarts_with_each_episode():
-    env = CCREnv("nominal", num_robots=2, num_envs=4, discrete_actions=True)
+    env = EmergencyEnv("nominal", num_robots=2, num_envs=4, discrete_actions=True)
     transform = CCR(CCRConfig(window=2, comm_range=1.0))  # mean over m + 1 = 3 steps
     position = [[0.0, 0.0], [0.5, 0.0]]  # in range of each other, never moving
     action = jnp.zeros((2, 4), jnp.int32)  # "none"
@@ -335,7 +335,7 @@ def unjitted_episode(env, transform, state, act, key):
 def discrete_episodes():
     """Two episodes of a tiny discrete-action env through CCR, jitted and without jit;
     the first trains the model, the second runs with the fitted model."""
-    env = CCREnv("nominal", **TINY_ENV)
+    env = EmergencyEnv("nominal", **TINY_ENV)
     # Thresholds low enough that the well-fitted second episode (scores ~1e-7) shows
     # every colour.
     transform = CCR(CCRConfig(sensing_threshold=1e-7, activation_threshold=1e-7))

@@ -19,7 +19,7 @@ import pytest
 from brax.envs.base import State
 
 from ccrjax import train
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.training import TrainConfig
 from ccrjax.training.config import config_from_dict, config_to_dict
 from ccrjax.transforms import VARIANTS
@@ -49,7 +49,8 @@ def rollouts():
     the observations ``[T + 1, N, F', E]``, rewards and info ``[T, N, E]``, and the env's
     own observations, rewards, danger flags and positions (``[T + 1]`` where they include
     the reset), and the states between episodes."""
-    env = CCREnv("turbulence", num_robots=NUM_ROBOTS, num_envs=NUM_ENVS, episode_length=LENGTH)
+    env = EmergencyEnv("turbulence", num_robots=NUM_ROBOTS, num_envs=NUM_ENVS,
+                       episode_length=LENGTH)
 
     @jax.jit
     def episode(states, key):
@@ -220,7 +221,7 @@ def hand_state(position, danger):
 def test_perfect_detector_by_hand():
     # Three robots: 0 and 1 within range (0.6 apart at first), 2 far away. Robot 0 is in
     # danger after the 1st and 2nd transitions only; robot 0 moves along +x, robot 1 along -y.
-    env = CCREnv("nominal", num_robots=3, num_envs=1)
+    env = EmergencyEnv("nominal", num_robots=3, num_envs=1)
     transform = CCRPerfect(CCRConfig(window=2, lam=5.0))
     danger = [[0, 0, 0], [1, 0, 0], [1, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]
     positions = [np.array([[0.1 * t, 0.0], [0.6, -0.05 * t], [5.0, 5.0]]) for t in range(7)]
@@ -251,7 +252,7 @@ def test_perfect_detector_by_hand():
 def test_danger_flags_by_hand():
     # Four robots on the x axis at 0, 0.5, 3, 0.9 (as tests/test_ccr.py's shared scores),
     # in danger: 0, 2, 3. Range 1: robots 0, 1, 3 talk, robot 2 talks to nobody.
-    env = CCREnv("nominal", num_robots=4, num_envs=1)
+    env = EmergencyEnv("nominal", num_robots=4, num_envs=1)
     transform = DangerFlags(comm_range=1.0)
     state = transform.init(env)
     position = [[0.0, 0.0], [0.5, 0.0], [3.0, 0.0], [0.9, 0.0]]
@@ -285,7 +286,7 @@ def test_the_new_variants_round_trip_through_json(variant):
     config = TrainConfig(variant=variant, transform=NEW[variant])
     again = config_from_dict(json.loads(json.dumps(config_to_dict(config))))
     assert again == config and type(again.transform) is type(NEW[variant])
-    assert type(TrainConfig(variant=variant).transform_config) is type(NEW[variant])
+    assert type(TrainConfig(variant=variant).resolved_transform) is type(NEW[variant])
     with pytest.raises(ValueError, match=f"transform of variant '{variant}' must be a "):
         TrainConfig(variant=variant, transform=CCR())
 

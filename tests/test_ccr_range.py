@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.transforms.ccr import CCR, CCRConfig, intrinsic_reward, shared_scores
 
 COMM_RANGE = 1.0
@@ -75,7 +75,7 @@ def trajectory():
 @pytest.fixture(scope="module")
 def stepped():
     """The transform's outputs for the three steps: next observations, rewards, info."""
-    env = CCREnv("nominal", num_robots=4, num_envs=2, episode_length=10)
+    env = EmergencyEnv("nominal", num_robots=4, num_envs=2, episode_length=10)
     transform = CCR(CCRConfig(window=WINDOW, comm_range=COMM_RANGE, lam=LAM))
     reset = env.reset(jax.random.PRNGKey(0))
     position, velocity = trajectory()

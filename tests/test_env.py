@@ -1,4 +1,4 @@
-"""Tests of :class:`ccrjax.envs.env.CCREnv`: registry, batching, determinism, auto-reset,
+"""Tests of :class:`ccrjax.envs.env.EmergencyEnv`: registry, batching, determinism, auto-reset,
 start positions and targets, success, observation layout, jit, and input validation.
 
 Arrays are batch-last: obs ``[N, F, B]``, reward ``[N, B]``, continuous action ``[N, 2, B]``.
@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ccrjax.agents.types import Transition
-from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.env import EmergencyEnv, WorldState
 from ccrjax.envs.scenarios import Hazard, Layout
 from ccrjax.envs.scenarios.layout import target_positions
 from ccrjax.envs.world import rectangle_distance
@@ -70,7 +70,7 @@ class Compiled:
     reset) gave from the same state, and ``env.observe`` of each stepped world.
     """
 
-    def __init__(self, env: CCREnv):
+    def __init__(self, env: EmergencyEnv):
         self.env = env
         self.reset = jax.jit(env.reset)
 
@@ -91,13 +91,14 @@ def compiled():
 
     def get(name: str) -> Compiled:
         if name not in cache:
-            cache[name] = Compiled(CCREnv(name, num_robots=N, num_envs=B, episode_length=EPISODE))
+            cache[name] = Compiled(EmergencyEnv(name, num_robots=N, num_envs=B,
+                                                episode_length=EPISODE))
         return cache[name]
 
     return get
 
 
-def hand_batch_world(env: CCREnv, key=None) -> WorldState:
+def hand_batch_world(env: EmergencyEnv, key=None) -> WorldState:
     """A world of ``B`` environments built with numpy (no random draws): hazards of each
     scenario's shape, robot 0 inside the hazard area (on the obstacle's -x face, touching
     it), robot 1 overlapping robot 0 (a contact), robot 2 well outside, random velocities."""
@@ -132,7 +133,7 @@ def hand_batch_world(env: CCREnv, key=None) -> WorldState:
     )
 
 
-def hand_state(env: CCREnv, key) -> State:
+def hand_state(env: EmergencyEnv, key) -> State:
     """A brax State around :func:`hand_batch_world` (what ``step`` reads of it is the world)."""
     zeros = jnp.zeros((N, B), jnp.float32)
     return State(
@@ -152,7 +153,7 @@ def test_brax_registry():
     import brax.envs
 
     env = brax.envs.get_environment("ccr_hidden_obstacle", num_envs=4)
-    assert isinstance(env, CCREnv)
+    assert isinstance(env, EmergencyEnv)
     assert env.scenario.name == "hidden_obstacle" and env.num_envs == 4
     state = jax.eval_shape(env.reset, jax.random.key(0))  # shapes only, nothing compiled
     n = env.num_robots
@@ -163,7 +164,7 @@ def test_brax_registry():
     env.check_action(jnp.zeros((n, env.action_size, 4)))  # the documented action layout
     for name in NAMES:
         env = brax.envs.get_environment(f"ccr_{name}", num_robots=2, discrete_actions=True)
-        assert isinstance(env, CCREnv) and env.scenario.name == name
+        assert isinstance(env, EmergencyEnv) and env.scenario.name == name
         assert env.action_size == 9
         assert env.observation_size == 4 + 3 + 3 + env.scenario.hazard_feature_size
 
@@ -180,8 +181,8 @@ def slice_env(world: WorldState, b: int) -> WorldState:
 
 @pytest.mark.parametrize("name", NAMES)
 def test_batch_equals_environments_stepped_one_by_one(name):
-    batched_env = CCREnv(name, num_robots=N, num_envs=B)
-    single_env = CCREnv(name, num_robots=N, num_envs=1)
+    batched_env = EmergencyEnv(name, num_robots=N, num_envs=B)
+    single_env = EmergencyEnv(name, num_robots=N, num_envs=1)
 
     def advance_and_read(env, world, action, noise):
         world = env.advance(world, action, noise)
@@ -257,7 +258,7 @@ def test_same_key_same_episode_different_key_different_episode(compiled):
 def test_turbulence_pushes_come_from_the_state_key():
     # The turbulence draws fresh pushes from the state's key every step. Robots 0 and 1 are
     # inside the area in every environment (hand-built world), robot 2 is outside.
-    env = CCREnv("turbulence", num_robots=N, num_envs=B)
+    env = EmergencyEnv("turbulence", num_robots=N, num_envs=B)
     transition = jax.jit(env.transition)
     state = hand_state(env, jax.random.key(0))
     zero = jnp.zeros((N, 2, B))
@@ -280,7 +281,7 @@ def test_turbulence_pushes_come_from_the_state_key():
 # --------------------------------------------------------------------------- auto-reset
 
 
-def in_start_box(env: CCREnv, position) -> bool:
+def in_start_box(env: EmergencyEnv, position) -> bool:
     centre = np.array(env.layout.start_centre)[None, :, None]
     half = np.array(env.layout.start_half_extent)[None, :, None]
     return bool(np.all(np.abs(np.asarray(position) - centre) <= half + 1e-6))
@@ -356,7 +357,7 @@ def test_transition_never_resets(compiled):
 )
 def test_starts_are_separated_and_targets_are_slots_by_height(num_robots, layout):
     batch = 4096
-    env = CCREnv("nominal", num_robots=num_robots, num_envs=batch, layout=layout)
+    env = EmergencyEnv("nominal", num_robots=num_robots, num_envs=batch, layout=layout)
     world = jax.jit(env.reset)(jax.random.key(11)).pipeline_state
     position, target = np.asarray(world.position), np.asarray(world.target)
     # Every pair at least min_separation apart, every robot inside the start box.
@@ -460,7 +461,7 @@ def pile_env():
     """12 robots (a target area that holds them) in 16 environments of the hidden obstacle,
     and a rollout of ``env.transition`` with full action towards an aim point ``[2, B]``."""
     layout = Layout(target_spacing=0.1, goal_radius=0.8)
-    env = CCREnv("hidden_obstacle", num_robots=PILE_ROBOTS, num_envs=PILE_ENVS, layout=layout)
+    env = EmergencyEnv("hidden_obstacle", num_robots=PILE_ROBOTS, num_envs=PILE_ENVS, layout=layout)
 
     def run(state, aim):
         def body(state, _):
@@ -528,7 +529,7 @@ def test_obstacle_is_solid_through_the_environment(pile_env, seed):
 HAND_TARGETS = np.array([[1.5, -0.15], [1.5, 0.15], [1.5, 0.0]], np.float32)
 
 
-def hand_world(env: CCREnv, hazard: Hazard) -> WorldState:
+def hand_world(env: EmergencyEnv, hazard: Hazard) -> WorldState:
     position = np.array([[0.0, 0.0], [0.3, 0.4], [-1.0, 0.0]], np.float32)[:, :, None]
     velocity = np.array([[0.1, -0.2], [0.0, 0.5], [-1.0, 0.0]], np.float32)[:, :, None]
     return WorldState(
@@ -559,7 +560,7 @@ def column(*values):
 
 
 def test_observation_layout_hand_placed():
-    env = CCREnv("turbulence", num_robots=3, num_envs=1)
+    env = EmergencyEnv("turbulence", num_robots=3, num_envs=1)
     # Turbulence circle centred at (0.1, 0) with radius 0.5; the targets are HAND_TARGETS.
     hazard = Hazard(centre=column(0.1, 0.0), half_extent=column(0.5, 0.5),
                     direction=column(0.0, 0.0))
@@ -597,12 +598,12 @@ def test_observation_layout_hand_placed():
 
 
 def test_observation_of_obstacle_nominal_and_coincident_robots():
-    obstacle_env = CCREnv("hidden_obstacle", num_robots=3, num_envs=1)
+    obstacle_env = EmergencyEnv("hidden_obstacle", num_robots=3, num_envs=1)
     # Obstacle x in [0.2, 0.4], y in [-0.5, 0.5]: robot 1 at (0.3, 0.4) is inside (touching).
     hazard = Hazard(centre=column(0.3, 0.0), half_extent=column(0.1, 0.5),
                     direction=column(0.0, 0.0))
     world = hand_world(obstacle_env, hazard)
-    nominal_env = CCREnv("nominal", num_robots=3, num_envs=1)
+    nominal_env = EmergencyEnv("nominal", num_robots=3, num_envs=1)
     stacked = world.replace(position=world.position.at[1].set(world.position[0]))
     observe = jax.jit(lambda w, s: (obstacle_env.observe(w), nominal_env.observe(w),
                                     nominal_env.observe(s)))
@@ -640,8 +641,8 @@ def test_jit_equals_no_jit(compiled):
 @pytest.mark.parametrize("action_set", ["box9", "mpe5"])
 def test_discrete_actions_are_their_continuous_commands(action_set):
     # Discrete action a moves a robot exactly as the continuous action DIRECTIONS[a].
-    continuous = CCREnv("hidden_obstacle", num_robots=N, num_envs=B)
-    discrete = CCREnv("hidden_obstacle", num_robots=N, num_envs=B, discrete_actions=True,
+    continuous = EmergencyEnv("hidden_obstacle", num_robots=N, num_envs=B)
+    discrete = EmergencyEnv("hidden_obstacle", num_robots=N, num_envs=B, discrete_actions=True,
                       discrete_action_set=action_set)
     directions = {"box9": [[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1],
                            [-1, -1], [-1, 1], [1, -1], [1, 1]],
@@ -666,13 +667,13 @@ def test_discrete_actions_are_their_continuous_commands(action_set):
 def test_random_actions_helper():
     from ccrjax.envs.env import random_actions as env_random_actions
 
-    env = CCREnv("nominal", num_robots=N, num_envs=64)
+    env = EmergencyEnv("nominal", num_robots=N, num_envs=64)
     action = np.asarray(env_random_actions(jax.random.key(0, impl="rbg"), env))
     assert action.shape == (N, 2, 64) and action.dtype == np.float32
     assert action.min() >= -1.0 and action.max() < 1.0
     assert action.max() - action.min() > 1.8 and abs(action.mean()) < 0.1
     assert not np.allclose(action[:, 0], action[:, 1])  # the two halves are independent
-    discrete = CCREnv("nominal", num_robots=N, num_envs=64, discrete_actions=True)
+    discrete = EmergencyEnv("nominal", num_robots=N, num_envs=64, discrete_actions=True)
     choice = np.asarray(env_random_actions(jax.random.key(0, impl="rbg"), discrete))
     assert choice.shape == (N, 64) and np.issubdtype(choice.dtype, np.integer)
     assert set(np.unique(choice)) == set(range(9))  # box9, the default set
@@ -704,7 +705,7 @@ def test_random_actions_helper():
 def test_bad_arguments_raise_value_error(kwargs, pattern):
     kwargs = {"scenario": "turbulence", **kwargs}
     with pytest.raises(ValueError, match=pattern):
-        CCREnv(**kwargs)
+        EmergencyEnv(**kwargs)
 
 
 @pytest.mark.parametrize(
@@ -745,7 +746,7 @@ def test_bad_arguments_raise_value_error(kwargs, pattern):
 def test_layouts_that_cannot_hold_the_task_raise_value_error(kwargs, pattern):
     kwargs = {"scenario": "turbulence", **kwargs}
     with pytest.raises(ValueError, match=pattern):
-        CCREnv(**kwargs)
+        EmergencyEnv(**kwargs)
 
 
 def test_bad_arguments_through_the_registry():
@@ -756,7 +757,7 @@ def test_bad_arguments_through_the_registry():
 
 
 def test_wrong_action_shape_raises_value_error():
-    env = CCREnv("nominal", num_robots=N, num_envs=B)
+    env = EmergencyEnv("nominal", num_robots=N, num_envs=B)
     state = jax.eval_shape(env.reset, jax.random.key(0))  # check_action runs before any math
     for action in (
         jnp.zeros((N, 2, B + 1)),  # wrong batch
@@ -770,7 +771,7 @@ def test_wrong_action_shape_raises_value_error():
             jax.eval_shape(env.step, state, action)  # raised while tracing under jit
         with pytest.raises(ValueError, match=r"action must be float\[3, 2, 4\]"):
             env.transition(state, action)
-    discrete = CCREnv("nominal", num_robots=N, num_envs=B, discrete_actions=True)
+    discrete = EmergencyEnv("nominal", num_robots=N, num_envs=B, discrete_actions=True)
     for action in (jnp.zeros((N, B)), jnp.zeros((N, B + 1), jnp.int32)):
         with pytest.raises(ValueError, match=r"action must be int\[3, 4\]"):
             discrete.step(state, action)

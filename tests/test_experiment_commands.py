@@ -142,7 +142,7 @@ def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budge
         {"budget": b, "plateaued": b >= (4_500_000 if (s, a) == ("turbulence", "maac") else
                                          3_000_000), "last": 1.0, "previous": 0.5}
         for b in (3_000_000, 4_500_000, 6_000_000)]}
-        for a in budgets.ALGOS for s in budgets.SCENARIOS]
+        for a in budgets.ALGOS for s in budgets.PAPER_SCENARIOS]
     named = {"candidate_budgets": [3_000_000, 4_500_000, 6_000_000]}
     assert budgets.rule_lines({"cells": nine, "settings": {"candidate_budgets": []}}) == []
     text = "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
@@ -653,10 +653,10 @@ def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, b
     made += [(tables.Settings(lam=3.0, penalty=0.3), lambda s, sc, a, v=v: s.config(sc, a, v))
              for v in ("plain", "pessimistic", "ccr")]
     for settings, config_of in made:
-        maac = config_of(settings, "strong_wind", "maac").learner_config
+        maac = config_of(settings, "strong_wind", "maac").resolved_learner
         assert (maac.gradient_steps, maac.batch_size, maac.update_every) == (1, 256, 100)
         assert maac == protocol.LEARNERS["maac"]
-        assert config_of(settings, "strong_wind", "maddpg").learner_config == DDPGConfig()
+        assert config_of(settings, "strong_wind", "maddpg").resolved_learner == DDPGConfig()
         record = ledger.settings_record(settings)
         config = config_of(settings, "strong_wind", "maac")
         training = ledger.training_record(config)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.envs.scenarios import Layout
 from ccrjax.training.acting import Episode, StatefulController, episode_metrics, run_episode
 from ccrjax.transforms import Plain
@@ -89,7 +89,7 @@ def act_once(controller, world):
 
 
 def test_team_informed_reacts_only_to_teammates_in_range(info):
-    env = CCREnv("turbulence")
+    env = EmergencyEnv("turbulence")
     own = info.self_reactive(env)
     team = info.team_informed(env)
     # In range (0.8 <= comm_range 1.0): robot 0 turns off its straight way.
@@ -110,7 +110,7 @@ def test_team_informed_reacts_only_to_teammates_in_range(info):
 
 
 def test_team_informed_remembers_a_warning_for_memory_steps(info):
-    env = CCREnv("turbulence")
+    env = EmergencyEnv("turbulence")
     memory = 3
     team, own = info.team_informed(env, memory=memory), info.self_reactive(env)
     warning = world_with(env, [(-1.2, 0.0), (-0.4, 0.0), *FAR], CENTRE, HALF)
@@ -133,7 +133,7 @@ def test_team_informed_out_of_range_is_self_reactive(info):
     range all the time: the whole episode is the self-reactive one (up to the float
     rounding of two differently fused programs)."""
     def env_of(batch):
-        return CCREnv("turbulence", num_envs=batch, layout=Layout(
+        return EmergencyEnv("turbulence", num_envs=batch, layout=Layout(
             formation="column", column_spacing=0.3), episode_length=30)
 
     env = env_of(32)
@@ -147,7 +147,7 @@ def test_team_informed_out_of_range_is_self_reactive(info):
 
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_self_reactive_never_reacts_to_a_teammate(info, reference, scenario):
-    env = CCREnv(scenario)
+    env = EmergencyEnv(scenario)
     own = info.self_reactive(env)
     # Robot 0 senses the hazard itself: inside the area, or pressed against the obstacle.
     mine = (-0.555, 0.1) if scenario == "hidden_obstacle" else (-0.4, 0.1)
@@ -176,7 +176,7 @@ def test_self_reactive_never_reacts_to_a_teammate(info, reference, scenario):
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_go_round_with_the_true_hazard_is_the_oracle(info, reference, scenario):
     """The self-reactive robot that knows the hazard steers as the oracle does."""
-    env = CCREnv(scenario, num_envs=64)
+    env = EmergencyEnv(scenario, num_envs=64)
     world = env.reset(jax.random.key(1)).pipeline_state
     world = world.replace(position=world.position + jax.random.uniform(
         jax.random.key(2), world.position.shape, minval=-0.2, maxval=3.0) * jnp.array(
@@ -195,7 +195,7 @@ def test_go_round_with_the_true_hazard_is_the_oracle(info, reference, scenario):
 
 @pytest.mark.slow  # whole episodes of several controllers: make test-slow
 def test_team_informed_is_no_less_safe_than_go_to_goal_on_the_obstacle(info, reference):
-    rows = blocks_metrics(info, lambda b: CCREnv("hidden_obstacle", num_envs=b), {
+    rows = blocks_metrics(info, lambda b: EmergencyEnv("hidden_obstacle", num_envs=b), {
         "go_to_goal": reference.go_to_goal, "team_informed": info.team_informed,
         "self_reactive": info.self_reactive}, episodes=128)
     assert rows["team_informed"]["danger_frequency"] <= rows["go_to_goal"]["danger_frequency"]
@@ -209,7 +209,7 @@ def test_gaming_policies_fail_in_the_new_regimes(info, reference, scenario):
     layout = Layout(formation="column", column_spacing=0.6, hazard_y_range=(-1.0, 1.0),
                     arena_half_extent=(3.75, 2.0))
     rows = blocks_metrics(
-        info, lambda b: CCREnv(scenario, num_envs=b, layout=layout, episode_length=40),
+        info, lambda b: EmergencyEnv(scenario, num_envs=b, layout=layout, episode_length=40),
         {name: reference.CONTROLLERS[name] for name in (*reference.GAMING, "oracle")},
         episodes=64)
     for name in reference.GAMING:
@@ -228,11 +228,11 @@ def test_gaming_policies_fail_in_the_new_regimes(info, reference, scenario):
 ])
 def test_team_informed_refuses_bad_parameters_when_built(info, kwargs, message):
     with pytest.raises(ValueError, match=message):
-        info.team_informed(CCREnv("turbulence"), **kwargs)
+        info.team_informed(EmergencyEnv("turbulence"), **kwargs)
 
 
 def test_team_informed_accepts_the_bounds(info):
-    env = CCREnv("turbulence", episode_length=25)
+    env = EmergencyEnv("turbulence", episode_length=25)
     info.team_informed(env, comm_range=2.0 * float(np.hypot(2.5, 2.0)), memory=25)
     info.team_informed(env, comm_range=1e-3, memory=0)
 
@@ -289,7 +289,7 @@ def test_memoriser_height_is_chosen_on_the_selection_seed(monkeypatch):
 
 
 def test_run_episode_carries_a_stateful_controllers_memory():
-    env = CCREnv("nominal", num_envs=2, episode_length=6)
+    env = EmergencyEnv("nominal", num_envs=2, episode_length=6)
 
     def act(world, count, key):  # a push along x at the third step only
         push = jnp.where(count == 2, 1.0, 0.0)
@@ -305,7 +305,7 @@ def test_run_episode_carries_a_stateful_controllers_memory():
 @pytest.mark.slow  # whole episodes of several controllers: make test-slow
 def test_evaluate_controller_runs_the_information_controllers(reference):
     """By name, with parameters, snapped to discrete actions (memory and all)."""
-    env = CCREnv("hidden_obstacle", num_envs=4, discrete_actions=True)
+    env = EmergencyEnv("hidden_obstacle", num_envs=4, discrete_actions=True)
     metrics = reference.evaluate_controller(env, "team_informed", jax.random.key(0), memory=2)
     assert 0.0 < float(metrics["danger_frequency"]) < 1.0
     with pytest.raises(ValueError, match="controller must be one of .*'memoriser'"):

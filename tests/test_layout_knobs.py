@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ccrjax import train
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.envs.scenarios import Layout
 from ccrjax.envs.scenarios.layout import (
     abreast_positions,
@@ -51,7 +51,7 @@ def test_the_abreast_default_draws_what_it_drew_before_the_column_existed():
 
 def test_a_column_meets_the_obstacle_in_order_one_spacing_apart():
     spacing = 0.6
-    env = CCREnv("hidden_obstacle", num_envs=16, episode_length=40, layout=COLUMN)
+    env = EmergencyEnv("hidden_obstacle", num_envs=16, episode_length=40, layout=COLUMN)
     state = env.reset(jax.random.PRNGKey(0))
     rank = np.argsort(np.argsort(-np.asarray(state.pipeline_state.position[:, 0]), axis=0),
                       axis=0)  # 0 = leader
@@ -77,7 +77,7 @@ def test_a_column_meets_the_obstacle_in_order_one_spacing_apart():
 @pytest.mark.parametrize("scenario", ["turbulence", "strong_wind", "hidden_obstacle"])
 def test_wide_placements_stay_in_range_and_off_the_start_and_target_areas(scenario):
     layout = Layout(hazard_x_range=(-0.2, 0.1), hazard_y_range=(-1.0, 1.0))
-    env = CCREnv(scenario, num_envs=512, layout=layout)
+    env = EmergencyEnv(scenario, num_envs=512, layout=layout)
     world = env.reset(jax.random.PRNGKey(2)).pipeline_state
     centre = np.asarray(world.hazard.centre)
     assert centre[0].min() >= -0.2 and centre[0].max() <= 0.1
@@ -102,19 +102,19 @@ def test_sample_centre_is_uniform_over_the_placement_range():
     (lambda: Layout(formation="line"), "Layout.formation must be one of"),
     (lambda: Layout(column_spacing=0.0), "Layout.column_spacing must be a finite number > 0"),
     (lambda: Layout(formation="column", column_lateral=2.5), "Layout.column_lateral"),
-    (lambda: CCREnv("nominal", layout=Layout(formation="column", column_spacing=0.1)),
+    (lambda: EmergencyEnv("nominal", layout=Layout(formation="column", column_spacing=0.1)),
      "column_spacing must be at least min_separation"),
-    (lambda: CCREnv("nominal", layout=Layout(formation="column", column_spacing=0.5)),
+    (lambda: EmergencyEnv("nominal", layout=Layout(formation="column", column_spacing=0.5)),
      "beyond the arena |x| <= 2.5; allowed: column_spacing <= 0.3"),
-    (lambda: CCREnv("nominal", episode_length=21, layout=Layout(formation="column")),
+    (lambda: EmergencyEnv("nominal", episode_length=21, layout=Layout(formation="column")),
      "episode_length 21 is too short for a column"),
-    (lambda: CCREnv("turbulence", layout=Layout(hazard_y_range=(-1.5, 1.5))),
+    (lambda: EmergencyEnv("turbulence", layout=Layout(hazard_y_range=(-1.5, 1.5))),
      "beyond the arena"),
-    (lambda: CCREnv("turbulence", layout=Layout(hazard_x_range=(-0.5, 0.1))),
+    (lambda: EmergencyEnv("turbulence", layout=Layout(hazard_x_range=(-0.5, 0.1))),
      "overlapping the start box"),
-    (lambda: CCREnv("turbulence", layout=Layout(hazard_x_range=(-0.1, 0.3))),
+    (lambda: EmergencyEnv("turbulence", layout=Layout(hazard_x_range=(-0.1, 0.3))),
      "overlapping the target area"),
-    (lambda: CCREnv("hidden_obstacle", layout=Layout(formation="column",
+    (lambda: EmergencyEnv("hidden_obstacle", layout=Layout(formation="column",
                                                      hazard_x_range=(-1.2, 0.1))),
      "overlapping the column's start region"),
 ])
@@ -128,9 +128,9 @@ def test_a_hazard_behind_the_start_box_is_refused_only_where_a_column_starts():
     # A short obstacle drawn behind the start box: clear of the box, in the column's way.
     behind = {"hazard_x_range": (-2.2, -2.1)}
     short = {"length_range": (0.2, 0.3)}
-    CCREnv("hidden_obstacle", scenario_params=short, layout=Layout(**behind))
+    EmergencyEnv("hidden_obstacle", scenario_params=short, layout=Layout(**behind))
     with pytest.raises(ValueError, match="overlapping the column's start region"):
-        CCREnv("hidden_obstacle", scenario_params=short,
+        EmergencyEnv("hidden_obstacle", scenario_params=short,
                layout=Layout(formation="column", **behind))
 
 

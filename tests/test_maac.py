@@ -10,16 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.agents.maac import (
-    MAAC,
-    MAACConfig,
-    attend,
-    attention_logit_penalty,
-    baseline,
-    sample_actions,
-)
+from ccrjax.agents.maac import MAAC, MAACConfig
+from ccrjax.agents.maac_parts import attend, attention_logit_penalty, baseline, sample_actions
 from ccrjax.agents.types import Transition
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.training import TrainConfig, make_train
 
 N, F, B = 3, 6, 8
@@ -323,7 +317,7 @@ def test_training_normalises_the_rewards_the_update_sees():
         learner=dataclasses.replace(SMALL, batch_size=64),
     )
     program = make_train(config)
-    program.learner = RewardSpy(config.learner_config)
+    program.learner = RewardSpy(config.resolved_learner)
     state = program.init(jax.random.PRNGKey(0))
     state, metrics = jax.jit(program.run, static_argnums=1)(state, 3)
     assert int(state.updates) == 3 * config.updates_per_iteration
@@ -413,7 +407,7 @@ def test_action_set_is_validated_and_sets_the_action_count():
     with pytest.raises(ValueError, match="MAACConfig.action_set must be one of"):
         MAACConfig(action_set="mpe9")
     with pytest.raises(ValueError, match=r"discrete_action_set must be one of \['box9', 'mpe5'\]"):
-        CCREnv("nominal", discrete_actions=True, discrete_action_set="box8")
+        EmergencyEnv("nominal", discrete_actions=True, discrete_action_set="box8")
     program = make_train(TrainConfig(algo="maac", learner=MAACConfig(action_set="mpe5"),
                                      total_env_steps=1000, learning_starts=200))
     assert program.env.action_size == 5 and program.learner.num_actions == 5

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.training.acting import Episode, episode_metrics, run_episode
 from ccrjax.transforms import Plain
 
@@ -41,7 +41,7 @@ def controllers():
 def run_all_controllers(module, scenario: str, seed: int = 0):
     """Every controller's metrics and per-step success ``[T, N, EPISODES]`` in ``scenario``."""
     names = list(module.CONTROLLERS)
-    env = CCREnv(scenario, num_envs=EPISODES * len(names))
+    env = EmergencyEnv(scenario, num_envs=EPISODES * len(names))
     policies = [module.CONTROLLERS[name](env) for name in names]
     block = np.repeat(np.arange(len(names)), EPISODES)  # which controller drives each env
 
@@ -106,7 +106,7 @@ def test_go_to_goal_and_oracle_succeed_without_a_hazard(results):
 
 
 def test_success_is_read_at_the_last_step_not_sticky(controllers, results):
-    layout = CCREnv("nominal").layout
+    layout = EmergencyEnv("nominal").layout
     # overshoot: full speed (0.2 a step) along the way, at its starting height. A robot
     # that starts within 0.3 of the goal's height crosses the target area on a chord of
     # at least 2 sqrt(0.4^2 - 0.3^2) = 0.53, so it is in the area at some step; it then
@@ -127,7 +127,7 @@ def test_success_is_read_at_the_last_step_not_sticky(controllers, results):
 
 
 def test_evaluate_controller_rejects_bad_input(controllers):
-    env = CCREnv("nominal", num_envs=2)
+    env = EmergencyEnv("nominal", num_envs=2)
     with pytest.raises(ValueError, match="controller must be one of"):
         controllers.evaluate_controller(env, "teleport", jax.random.key(0))
 
@@ -137,7 +137,7 @@ def test_snapping_to_a_discrete_action_set(controllers):
         return lambda world, key: jnp.broadcast_to(
             jnp.asarray(command, jnp.float32)[None, :, None], world.position.shape)
 
-    world = CCREnv("nominal", num_envs=1).reset(jax.random.key(0)).pipeline_state
+    world = EmergencyEnv("nominal", num_envs=1).reset(jax.random.key(0)).pipeline_state
     for command, box9, mpe5 in [((0.9, 0.8), 8, 2), ((0.2, -0.1), 0, 0), ((-0.1, -0.7), 3, 3),
                                 ((-0.8, 0.9), 6, 4)]:
         for action_set, expected in (("box9", box9), ("mpe5", mpe5)):
@@ -150,7 +150,7 @@ def test_the_oracle_needs_the_box_of_actions(controllers):
     """Why MAAC's actions are box9: snapped to it, the oracle still detours round the hidden
     obstacle; snapped to the MPE's five it cannot (experiments/calibrate.py measures all)."""
     def measured(action_set, name):
-        env = CCREnv("hidden_obstacle", num_envs=EPISODES, discrete_actions=True,
+        env = EmergencyEnv("hidden_obstacle", num_envs=EPISODES, discrete_actions=True,
                      discrete_action_set=action_set)
         return jax.jit(lambda key: controllers.evaluate_controller(env, name, key))(
             jax.random.key(0))

@@ -99,11 +99,12 @@ def test_a_registered_learner_trains_under_its_own_name() -> None:
                                   c, centralised_critic=True, actor_hidden=(16, 16)),
                               replace=True)
     config = TrainConfig(algo="maddpg_small", **{**TINY, "total_env_steps": None})
-    assert config.budget == 150 and config.learner_config.actor_hidden == (16, 16)
+    assert config.budget == 150 and config.resolved_learner.actor_hidden == (16, 16)
     _, history = jax.jit(make_train(config).train)(jax.random.PRNGKey(0))
     assert np.isfinite(history["return"]).all()
 
 
+@pytest.mark.slow
 def test_the_command_trains_plugins_and_refuses_their_bad_options(
         plugins: list[str], tmp_path: Path) -> None:
     base = [sys.executable, "-m", "ccrjax.train", "--plugin", plugins[0], "--plugin",

@@ -12,18 +12,10 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from PIL import Image
 
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.viz import render
-from ccrjax.viz.render import (
-    CCR_STATE_COLOURS,
-    CCR_STATE_NAMES,
-    FAILURE_COLOUR,
-    GOAL_COLOUR,
-    EpisodeRecord,
-    animate_episode,
-    draw_episode,
-    record_episode,
-)
+from ccrjax.viz.record import CCR_STATE_COLOURS, CCR_STATE_NAMES, EpisodeRecord, record_episode
+from ccrjax.viz.render import FAILURE_COLOUR, GOAL_COLOUR, animate_episode, draw_episode
 
 STEPS = 5
 
@@ -34,16 +26,16 @@ def random_policy(obs: jax.Array, key: jax.Array) -> jax.Array:
 
 
 @pytest.fixture(scope="module")
-def env() -> CCREnv:
-    return CCREnv("strong_wind", num_robots=3, num_envs=2, episode_length=STEPS)
+def env() -> EmergencyEnv:
+    return EmergencyEnv("strong_wind", num_robots=3, num_envs=2, episode_length=STEPS)
 
 
 @pytest.fixture(scope="module")
-def record(env: CCREnv) -> EpisodeRecord:
+def record(env: EmergencyEnv) -> EpisodeRecord:
     return record_episode(env, random_policy, jax.random.key(0), env_index=1)
 
 
-def test_record_matches_the_rollout(env: CCREnv, record: EpisodeRecord) -> None:
+def test_record_matches_the_rollout(env: EmergencyEnv, record: EpisodeRecord) -> None:
     assert record.scenario == "strong_wind"
     assert record.positions.shape == (STEPS + 1, 3, 2)
     assert record.states.shape == (STEPS + 1, 3)
@@ -78,7 +70,7 @@ def test_draw_and_animate(record: EpisodeRecord, tmp_path) -> None:
     assert gif.stat().st_size < 2_000_000
 
 
-def test_state_colours_are_drawn(env: CCREnv, record: EpisodeRecord, tmp_path) -> None:
+def test_state_colours_are_drawn(env: EmergencyEnv, record: EpisodeRecord, tmp_path) -> None:
     """CCR states given per step, robot and environment; their colours appear in the GIF."""
     # [T + 1, N, B]: robot i is in state i % 3, to show all three colours.
     shape = (STEPS + 1, env.num_robots, env.num_envs)
@@ -114,7 +106,7 @@ def test_record_validation(record: EpisodeRecord) -> None:
     assert not three.states.flags.writeable and not three.positions.flags.writeable
 
 
-def test_record_episode_rejects_bad_env_index(env: CCREnv) -> None:
+def test_record_episode_rejects_bad_env_index(env: EmergencyEnv) -> None:
     with pytest.raises(ValueError, match="env_index"):
         record_episode(env, random_policy, jax.random.key(0), env_index=2)
 
@@ -170,12 +162,12 @@ def test_outcomes_are_read_at_the_end_and_marked(record: EpisodeRecord, tmp_path
 def test_pictures_show_each_robot_its_danger_and_the_caption(tmp_path):
     """One trajectory colour per robot, a danger mark on the steps spent in danger (a plain
     run too), and the caption in the title; the GIF the same."""
-    env = CCREnv("hidden_obstacle", num_robots=3, num_envs=1, episode_length=12)
+    env = EmergencyEnv("hidden_obstacle", num_robots=3, num_envs=1, episode_length=12)
 
     def right(obs, key):
         return jnp.ones((3, 2, 1)) * jnp.array([1.0, 0.0])[None, :, None]
 
-    record = render.record_episode(env, right, jax.random.PRNGKey(0), caption="seed 7, ep 1")
+    record = record_episode(env, right, jax.random.PRNGKey(0), caption="seed 7, ep 1")
     assert record.danger is not None and record.danger.shape == (13, 3)
     assert not record.danger[0].any() and record.danger.any()  # they run into the obstacle
     lines, rings, titles = [], [], []
@@ -222,13 +214,13 @@ def test_pictures_show_each_robot_its_danger_and_the_caption(tmp_path):
 def test_a_long_caption_is_wrapped_inside_the_picture(tmp_path):
     """A caption far wider than the axes is wrapped, and every line of the title stays
     inside the figure, in the PNG and in the GIF (``make train``'s once ran off the left)."""
-    env = CCREnv("turbulence", num_robots=2, num_envs=1, episode_length=3)
+    env = EmergencyEnv("turbulence", num_robots=2, num_envs=1, episode_length=3)
 
     def still(obs, key):
         return jnp.zeros((2, 2, 1))
 
     caption = "seed 0's policy (deterministic), an episode drawn for the picture " * 3
-    record = render.record_episode(env, still, jax.random.PRNGKey(0), caption=caption.strip())
+    record = record_episode(env, still, jax.random.PRNGKey(0), caption=caption.strip())
     titles = []
     original_title = Axes.set_title
 

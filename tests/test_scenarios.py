@@ -215,7 +215,8 @@ def obstacle_rollout(position, velocity, action, hazard, steps, aim=None):
     """Robots driven against the hidden obstacle for ``steps`` steps.
 
     The action is ``action`` throughout, or, if ``aim`` (``[2, B]``) is given, full action
-    towards ``aim`` from wherever the robot is. One step as :meth:`ccrjax.envs.env.CCREnv.advance`
+    towards ``aim`` from wherever the robot is. One step as
+    :meth:`ccrjax.envs.env.EmergencyEnv.advance`
     takes it: the action force (the obstacle exerts none), the MPE step with the robots'
     contacts, then the obstacle's constraint. Returns positions and velocities
     ``[T + 1, N, 2, B]`` (the start included) and every robot's distance to the obstacle

@@ -353,6 +353,7 @@ def test_ctrl_c_during_the_first_chunk_finishes_it_and_saves_a_checkpoint(
     assert checkpoint_steps(out) == [200]
 
 
+@pytest.mark.slow
 def test_a_second_sigterm_during_a_checkpoint_write_keeps_it_whole_and_resumes_exactly(
     finished_run, tmp_path, subprocess_env, capsys
 ):

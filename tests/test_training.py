@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ccrjax.agents.ddpg import DDPGConfig
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.training import (
     NonFiniteTraining,
     TrainConfig,
@@ -38,7 +38,7 @@ TINY = TrainConfig(
 
 
 def stepped_states(scenario: str = "hidden_obstacle"):
-    env = CCREnv(scenario, num_envs=64, episode_length=30)
+    env = EmergencyEnv(scenario, num_envs=64, episode_length=30)
     state = env.reset(jax.random.PRNGKey(0))
     # Everyone runs flat out to +x, straight into whatever is on the way.
     action = jnp.zeros((env.num_robots, 2, env.num_envs)).at[:, 0].set(1.0)
@@ -236,8 +236,8 @@ def test_a_config_is_not_rewritten_and_says_what_it_uses():
     config = TrainConfig(algo="iddpg", variant="pessimistic")
     assert (config.total_env_steps, config.learner, config.transform) == (None, None, None)
     assert config.budget == default_budgets()["iddpg"] == 400_000
-    assert config.learner_config == DDPGConfig(centralised_critic=False)
-    assert config.transform_config == Pessimistic()
+    assert config.resolved_learner == DDPGConfig(centralised_critic=False)
+    assert config.resolved_transform == Pessimistic()
     again = config_from_dict(config_to_dict(config))
     assert again == config
     explicit = dataclasses.replace(config, transform=Pessimistic(penalty=3.0),

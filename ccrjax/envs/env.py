@@ -1,6 +1,6 @@
 """The multi-robot emergency environment, batched, behind brax's ``Env`` interface.
 
-One :class:`CCREnv` holds ``num_envs`` environments of one scenario and steps
+One :class:`EmergencyEnv` holds ``num_envs`` environments of one scenario and steps
 them all in one call. Following :mod:`ccrjax.envs.world`, every array has the
 environment batch as its **last** axis, and every per-robot array has the robot
 axis first:
@@ -29,9 +29,9 @@ target point", so reaching the far side of a hazard and then wandering off, or
 passing through the area and overshooting, is no success.
 
 Episodes have a fixed length and all ``B`` environments run in lockstep, so the
-episode clock is one scalar. :meth:`CCREnv.step` resets every environment when
+episode clock is one scalar. :meth:`EmergencyEnv.step` resets every environment when
 the clock reaches ``episode_length``: positions *and hazards* are drawn anew
-from the state's key (never a cached first episode). :meth:`CCREnv.transition`
+from the state's key (never a cached first episode). :meth:`EmergencyEnv.transition`
 is the same step without the reset, for learners that handle episode boundaries
 themselves and need the terminal observation.
 
@@ -103,8 +103,9 @@ class WorldState:
     key: jax.Array  # PRNG key for hazard noise and the next reset
 
 
-class CCREnv(Env):
-    """A batch of ``num_envs`` multi-robot environments of one emergency scenario.
+class EmergencyEnv(Env):
+    """A batch of ``num_envs`` multi-robot environments of one emergency scenario (the
+    world with its hazard; CCR itself is a transform, :mod:`ccrjax.transforms.ccr`).
 
     Args:
       scenario: a name in ``ccrjax.envs.scenarios.SCENARIOS`` or a ``Scenario`` object.
@@ -377,7 +378,7 @@ def of_other_robots(values: jax.Array) -> jax.Array:
     )
 
 
-def random_actions(key: jax.Array, env: CCREnv) -> jax.Array:
+def random_actions(key: jax.Array, env: EmergencyEnv) -> jax.Array:
     """Uniformly random actions for every robot of every environment of ``env``.
 
     Continuous: ``float32[N, 2, B]`` uniform in ``[-1, 1)`` at 16-bit resolution,
@@ -403,11 +404,6 @@ def batch_minor(x: jax.Array) -> jax.Array:
     return jnp.moveaxis(x, 0, -1)
 
 
-def make_env(scenario: str = "nominal", **kwargs: Any) -> CCREnv:
-    """Same as ``CCREnv(scenario, **kwargs)``."""
-    return CCREnv(scenario, **kwargs)
-
-
 def registered_name(scenario: str) -> str:
     """The brax registry name of a scenario: ``ccr_<scenario>``."""
     return f"ccr_{scenario}"
@@ -415,6 +411,6 @@ def registered_name(scenario: str) -> str:
 
 for _name in SCENARIOS:
     brax_envs.register_environment(
-        registered_name(_name), functools.partial(CCREnv, scenario=_name)
+        registered_name(_name), functools.partial(EmergencyEnv, scenario=_name)
     )
 

@@ -12,7 +12,7 @@ back into a function from observations to the deterministic evaluation actions::
     actions = act(obs)          # obs float32[batch, N, F] -> float32[batch, N, 2] (int32 for MAAC)
 
 The observations are what the learner saw in training (:func:`ccrjax.training.run_episode`
-builds them, batch first): the environment's ``F`` features (``CCREnv.observe``), and for a
+builds them, batch first): the environment's ``F`` features (``EmergencyEnv.observe``), and for a
 CCR run the other ``N - 1`` robots' shared emergency scores after them (``policy.json``
 gives ``obs_size`` and ``extra_obs``). Those scores come from CCR's model and the team's
 recent steps, not from one observation, so a CCR policy acts in whole episodes:

@@ -3,7 +3,8 @@
 Shared by training (which stores the transitions) and evaluation (which keeps
 the metrics). Both run the same transform (plain, pessimistic, CCR), so a policy
 trained on CCR's widened observations is evaluated on them too; the *metrics*
-always come from the environment itself, never from a transformed reward.
+always come from the environment itself, never from a transformed reward. Pictures of a
+hand-written policy use the same episode without a transform (:func:`plain_episode`).
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ import jax.numpy as jnp
 from flax import struct
 
 from ccrjax.agents.types import Transition
-from ccrjax.envs.env import CCREnv, WorldState
+from ccrjax.envs.env import EmergencyEnv, WorldState
 from ccrjax.envs.scenarios import Hazard
-from ccrjax.transforms import Transform
+from ccrjax.transforms import Plain, Transform
 
 
 def to_batch_major_obs(obs: jax.Array) -> jax.Array:
@@ -73,7 +74,7 @@ class StatefulController(NamedTuple):
 
 
 def run_episode(
-    env: CCREnv,
+    env: EmergencyEnv,
     transform: Transform,
     transform_state: Any,
     act: ActFn | None,
@@ -173,3 +174,36 @@ def episode_metrics(episode: Episode) -> dict[str, jax.Array]:
         "hazard_distance": jnp.mean(episode.hazard_distance),
         "return": jnp.mean(jnp.sum(episode.env_reward, axis=0)),
     }
+
+
+def compile_for(
+    function: Callable[..., Any], examples: tuple, optimize: bool = False
+) -> Callable[..., Any]:
+    """``jax.jit(function)`` compiled for the arguments ``examples``; unoptimised unless
+    ``optimize`` (on CPU that halves the compile time, most of what a recording costs)."""
+    lowered = jax.jit(function).lower(*examples)
+    if not optimize:
+        try:
+            return lowered.compile(compiler_options={"xla_backend_optimization_level": 0})
+        except Exception:  # an XLA without this option: compile normally
+            pass
+    return lowered.compile()
+
+
+def plain_episode(env: EmergencyEnv, policy: Callable[[jax.Array, jax.Array], jax.Array],
+                  key: jax.Array, optimize: bool = False) -> tuple[Any, jax.Array, jax.Array]:
+    """One episode of ``policy`` (``(obs [N, F, B], key) -> action [N, 2, B]``, the env's
+    layout) with the environment's own rewards (no transform), compiled once
+    (:func:`compile_for`): the hazard, positions ``[T + 1, N, 2, B]`` and per-step danger
+    ``[T, N, B]``, for pictures of a hand-written or random policy."""
+    plain = Plain()
+
+    def rollout(key: jax.Array) -> tuple[Any, Any, Any]:
+        def act(obs: jax.Array, step_key: jax.Array) -> jax.Array:  # learners' layout
+            action = policy(jnp.transpose(obs, (1, 2, 0)), step_key)  # [N, 2, B]
+            return jnp.transpose(action, (2, 0, 1))
+
+        _, episode = run_episode(env, plain, plain.init(env), act, False, key)
+        return episode.hazard, episode.position, episode.danger
+
+    return compile_for(rollout, (key,), optimize)(key)

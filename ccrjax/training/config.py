@@ -15,7 +15,7 @@ from typing import Any
 from ccrjax.agents.replay import replay_capacity
 from ccrjax.agents.types import Learner
 from ccrjax.checks import check_int, check_positive_int
-from ccrjax.envs.env import CCREnv, check_team
+from ccrjax.envs.env import EmergencyEnv, check_team
 from ccrjax.envs.scenarios import SCENARIOS, Layout, make_scenario
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET
 from ccrjax.registry import learner_entry, learner_names, transform_entry
@@ -37,7 +37,7 @@ class TrainConfig:
 
     ``algo`` and ``variant`` name the learner and the transform; ``learner`` and
     ``transform`` hold their parameters (``None``: that learner's or variant's defaults,
-    :attr:`learner_config` and :attr:`transform_config`). Sizes the paper leaves open are
+    :attr:`resolved_learner` and :attr:`resolved_transform`). Sizes the paper leaves open are
     chosen here and documented in the README: 8 training environments per seed, episodes of
     25 steps (the MPE's), and the environment-step budget per seed (:attr:`budget`; every
     environment step of every training environment counts). Validated when built, without
@@ -115,12 +115,12 @@ class TrainConfig:
         return self.total_env_steps
 
     @property
-    def transform_config(self) -> Transform:
+    def resolved_transform(self) -> Transform:
         """The transform the run uses: ``transform``, or the variant's defaults."""
         return transform_entry(self.variant).type() if self.transform is None else self.transform
 
     @property
-    def learner_config(self) -> Any:
+    def resolved_learner(self) -> Any:
         """The learner's hyperparameters: ``learner``, or the learner's defaults, completed
         for the learner's name (iddpg's and maddpg's critic centralised or not as it says)."""
         entry = learner_entry(self.algo)
@@ -173,7 +173,7 @@ class TrainConfig:
     @property
     def updates_per_iteration(self) -> int:
         """``gradient_steps`` updates every ``update_every`` environment steps (at least 1)."""
-        learner = self.learner_config
+        learner = self.resolved_learner
         return max(
             1, round(self.steps_per_iteration * learner.gradient_steps / learner.update_every)
         )
@@ -183,7 +183,7 @@ class TrainConfig:
         """The learner's buffer size, a multiple of one iteration's transitions, and no
         larger than all the transitions the run will ever collect."""
         collected = self.num_iterations * self.steps_per_iteration
-        wanted = min(self.learner_config.buffer_size, collected)
+        wanted = min(self.resolved_learner.buffer_size, collected)
         return replay_capacity(wanted, self.steps_per_iteration)
 
     @property
@@ -232,17 +232,17 @@ def config_from_dict(data: dict[str, Any]) -> TrainConfig:
     return TrainConfig(**values)
 
 
-def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
+def make_env(config: TrainConfig, num_envs: int) -> EmergencyEnv:
     """``num_envs`` environments of the run's scenario, team, episode length and layout, in
     the learner's action space (a discrete learner's ``action_set``, if its config has one)."""
     discrete = learner_entry(config.algo).discrete_actions
-    return CCREnv(
+    return EmergencyEnv(
         config.scenario,
         num_robots=config.num_robots,
         num_envs=num_envs,
         episode_length=config.episode_length,
         discrete_actions=discrete,
-        discrete_action_set=(getattr(config.learner_config, "action_set",
+        discrete_action_set=(getattr(config.resolved_learner, "action_set",
                                      DEFAULT_DISCRETE_ACTION_SET)
                              if discrete else DEFAULT_DISCRETE_ACTION_SET),
         scenario_params=dict(config.scenario_params),
@@ -251,10 +251,10 @@ def make_env(config: TrainConfig, num_envs: int) -> CCREnv:
 
 
 def make_learner(config: TrainConfig) -> Learner:
-    """The run's learner, built by its registry entry from :attr:`TrainConfig.learner_config`."""
-    return learner_entry(config.algo).build(config.learner_config)
+    """The run's learner, built by its registry entry from :attr:`TrainConfig.resolved_learner`."""
+    return learner_entry(config.algo).build(config.resolved_learner)
 
 
 def make_transform(config: TrainConfig) -> Transform:
-    """The run's transform: :attr:`TrainConfig.transform_config`."""
-    return config.transform_config
+    """The run's transform: :attr:`TrainConfig.resolved_transform`."""
+    return config.resolved_transform

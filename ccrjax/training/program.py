@@ -158,7 +158,7 @@ class TrainProgram:
         def do_updates(learner_state):
             def one_update(learner_state, key):
                 sample_key, learn_key = jax.random.split(key)
-                batch = sample(buffer, sample_key, config.learner_config.batch_size)
+                batch = sample(buffer, sample_key, config.resolved_learner.batch_size)
                 if self.learner.needs_reward_stats:
                     batch = self.learner.normalise_rewards(batch, *buffer.reward_mean_std())
                 return self.learner.update(learner_state, batch, learn_key)

@@ -42,18 +42,18 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax.checks import check_number
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.envs.env import State as EnvState
 
 
 class Transform(Protocol):
     name: str
 
-    def extra_obs_size(self, env: CCREnv) -> int: ...
+    def extra_obs_size(self, env: EmergencyEnv) -> int: ...
 
     def default_params(self) -> dict[str, float]: ...
 
-    def init(self, env: CCREnv, params: dict[str, Any]) -> Any: ...
+    def init(self, env: EmergencyEnv, params: dict[str, Any]) -> Any: ...
 
     def start_episode(self, state: Any, env_state: EnvState) -> tuple[Any, jax.Array]: ...
 
@@ -83,13 +83,13 @@ class Plain:
 
     name = "plain"
 
-    def extra_obs_size(self, env: CCREnv) -> int:
+    def extra_obs_size(self, env: EmergencyEnv) -> int:
         return 0
 
     def default_params(self) -> dict[str, float]:
         return {}
 
-    def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> dict[str, jax.Array]:
+    def init(self, env: EmergencyEnv, params: dict[str, Any] | None = None) -> dict[str, jax.Array]:
         return as_params(self.default_params(), params)
 
     def start_episode(self, state, env_state):

@@ -17,18 +17,16 @@ import numpy as np
 
 from ccrjax.run.folder import replacing
 from ccrjax.training import TrainProgram, TrainState, make_env
-from ccrjax.training.acting import run_episode
-from ccrjax.viz.render import (
+from ccrjax.training.acting import compile_for, run_episode
+from ccrjax.viz.record import (
     CCR_STATE_COLOURS,
     CCR_STATE_NAMES,
     DEFAULT_STATE_COLOURS,
     DEFAULT_STATE_NAMES,
     EpisodeRecord,
-    animate_episode,
-    compile_for,
-    draw_episode,
     episode_record,
 )
+from ccrjax.viz.render import animate_episode, draw_episode
 
 # Key of the pictures' episode: far from the training keys (seed) and evaluation keys.
 PICTURE_KEY = 0x9E3779B1

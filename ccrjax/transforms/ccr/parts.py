@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 
 from ccrjax.checks import check_number
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.envs.env import State as EnvState
 from ccrjax.transforms.base import Plain
 from ccrjax.transforms.ccr.scores import shared_scores_from_observation
@@ -89,7 +89,7 @@ class DangerFlags(Plain):
     def __post_init__(self) -> None:
         check_number("DangerFlags", "comm_range", self.comm_range, positive=False)
 
-    def extra_obs_size(self, env: CCREnv) -> int:
+    def extra_obs_size(self, env: EmergencyEnv) -> int:
         """The other robots' flags: ``N - 1``."""
         return env.num_robots - 1
 

@@ -88,7 +88,7 @@ def smoothed_score(window: ScoreWindow) -> jax.Array:
 @functools.cache
 def other_robots(num_robots: int) -> np.ndarray:
     """For robot ``i``, the other robots' indices in increasing order, ``int32[N, N - 1]``
-    (the order of :class:`ccrjax.envs.env.CCREnv`'s other-robot features)."""
+    (the order of :class:`ccrjax.envs.env.EmergencyEnv`'s other-robot features)."""
     return np.array(
         [[j for j in range(num_robots) if j != i] for i in range(num_robots)], dtype=np.int32
     )

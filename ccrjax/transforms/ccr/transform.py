@@ -31,7 +31,7 @@ perfect detector, with no model to fit). CCR itself has them all on, with the mo
 
 ``info`` reports, per robot ``[N, E]``: ``emergency_score`` (``E_{t+1}``),
 ``intrinsic_reward`` (the one added to the reward: zero without it) and ``ccr_state``,
-the paper's trajectory colour (index into ``ccrjax.viz.render.CCR_STATE_NAMES``): 1
+the paper's trajectory colour (index into ``ccrjax.viz.record.CCR_STATE_NAMES``): 1
 "sensing danger" if the own smoothed score exceeds ``sensing_threshold``, else 2
 "activated" if ``|R_in|`` exceeds ``activation_threshold``, else 0 "standby".
 """
@@ -48,7 +48,7 @@ from flax import struct
 
 import ccrjax.transforms.ccr.dynamics as dynamics
 from ccrjax.checks import check_int, check_number
-from ccrjax.envs.env import CCREnv
+from ccrjax.envs.env import EmergencyEnv
 from ccrjax.envs.env import State as EnvState
 from ccrjax.transforms.base import as_params
 from ccrjax.transforms.ccr.intrinsic import intrinsic_reward_from_observation
@@ -61,7 +61,7 @@ from ccrjax.transforms.ccr.scores import (
     smoothed_score,
 )
 
-STANDBY, SENSING_DANGER, ACTIVATED = 0, 1, 2  # ccrjax.viz.render.CCR_STATE_NAMES order
+STANDBY, SENSING_DANGER, ACTIVATED = 0, 1, 2  # ccrjax.viz.record.CCR_STATE_NAMES order
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,7 +163,7 @@ class CCR:
             raise ValueError(f"{type(self).__name__}.config must be a CCRConfig, "
                              f"got {self.config!r}")
 
-    def extra_obs_size(self, env: CCREnv) -> int:
+    def extra_obs_size(self, env: EmergencyEnv) -> int:
         """The other robots' shared scores: ``N - 1`` (0 without them)."""
         return env.num_robots - 1 if self.scores_in_obs else 0
 
@@ -171,7 +171,7 @@ class CCR:
         """``lam``, where the intrinsic reward is added; nothing otherwise."""
         return {"lam": float(self.config.lam)} if self.intrinsic else {}
 
-    def init(self, env: CCREnv, params: dict[str, Any] | None = None) -> CCRState:
+    def init(self, env: EmergencyEnv, params: dict[str, Any] | None = None) -> CCRState:
         """An untrained model (zero statistics and coefficients; none for the ``danger``
         detector) and the run's ``lam``."""
         model = self.detector == "model"
