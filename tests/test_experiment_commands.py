@@ -169,6 +169,23 @@ def test_the_tables_seeds_check_runs_the_protocols_longer_budget(budgets):
     assert budgets.settings_from(budgets.build_parser().parse_args([])).seeds == (200, 201, 202)
 
 
+def test_an_out_among_the_committed_results_is_named_unless_forced(tmp_path):
+    """The guard itself (the commands below use it): a folder of committed results, or a
+    new one among them, needs --force; a folder elsewhere does not."""
+    from experiments import ledger
+
+    results = tmp_path / "results"
+    (results / "search" / "ccr").mkdir(parents=True)
+    (results / "search" / "ccr" / "search.json").write_text("{}")
+    assert "holds committed results" in ledger.committed_results_problem(
+        results / "search" / "ccr", False, results)
+    assert "inside the committed results" in ledger.committed_results_problem(
+        results / "never_made", False, results)
+    assert ledger.committed_results_problem(results / "search" / "ccr", True, results) is None
+    assert ledger.committed_results_problem(tmp_path / "elsewhere", False, results) is None
+    assert ledger.committed_results_problem(ledger.RESULTS / "x", False)  # the real ones
+
+
 def test_committed_results_need_force(search, tables, budgets, tmp_path, capsys, monkeypatch):
     from experiments import ledger
 
