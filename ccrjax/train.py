@@ -158,26 +158,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def learner_option_groups() -> dict[str, tuple[type, list[str]]]:
-    """Each registered learner's option prefix, its config class and the learners named so
-    (``ddpg``: ``DDPGConfig``, iddpg and maddpg)."""
+def option_groups(entries: list[tuple[str, str | None, type]]
+                  ) -> dict[str, tuple[type, list[str]]]:
+    """Each option prefix of ``entries`` (name, prefix, its dataclass), with its dataclass and
+    the names that share it (``ddpg``: ``DDPGConfig``, iddpg and maddpg)."""
     groups: dict[str, tuple[type, list[str]]] = {}
-    for name in learner_names():
-        entry = learner_entry(name)
-        if entry.option_prefix is not None:
-            groups.setdefault(entry.option_prefix, (entry.config_type, []))[1].append(name)
+    for name, prefix, cls in entries:
+        if prefix is not None:
+            groups.setdefault(prefix, (cls, []))[1].append(name)
     return groups
+
+
+def learner_option_groups() -> dict[str, tuple[type, list[str]]]:
+    """The registered learners' option groups (their configs' fields)."""
+    return option_groups([(name, learner_entry(name).option_prefix,
+                           learner_entry(name).config_type) for name in learner_names()])
 
 
 def transform_option_groups() -> dict[str, tuple[type, list[str]]]:
-    """The same for transforms registered with an option prefix (the built-in ones have
+    """The option groups of transforms registered with a prefix (the built-in ones have
     their own options: --penalty, --lam, --ccr-*)."""
-    groups: dict[str, tuple[type, list[str]]] = {}
-    for name in transform_names():
-        entry = transform_entry(name)
-        if entry.option_prefix is not None:
-            groups.setdefault(entry.option_prefix, (entry.type, []))[1].append(name)
-    return groups
+    return option_groups([(name, transform_entry(name).option_prefix,
+                           transform_entry(name).type) for name in transform_names()])
 
 
 def option_prefixes() -> dict[str, str]:
