@@ -470,7 +470,7 @@ def prepare_out(prog: str, out: Path, force: bool) -> None:
         cli.fail(prog, str(error))
 
 
-# What a cell-based experiment keeps when Ctrl-C or SIGTERM stops it (cli.run_stoppable).
+# What a cell-based experiment keeps when Ctrl-C or SIGTERM stops it (terminal.run_command).
 STOPPED_KEPT = ("the finished programs' cells are kept in the --out folder, and the "
                 "program in training from its last save under partial/ if "
                 "--checkpoint-minutes allowed one; the same command goes on from them")

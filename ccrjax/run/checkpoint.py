@@ -43,10 +43,11 @@ from ccrjax import terminal
 
 
 class _NotAnInterrupt(logging.Filter):
-    """Drops a log record carrying a ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM as the
-    commands raise it): orbax logs a wait for a save cut short so as an ERROR with its
-    traceback ("Save Finalize thread failed"), while the save itself goes on and completes
-    when the checkpoints are closed; the command reports the stop in its own one line."""
+    """Drops a log record carrying a ``KeyboardInterrupt`` (a Ctrl-C in a program that uses
+    the library with Python's default handler; the commands' own stop handling,
+    :mod:`ccrjax.terminal`, raises none): orbax logs a wait for a save cut short so as an
+    ERROR with its traceback ("Save Finalize thread failed"), while the save itself goes on
+    and completes when the checkpoints are closed."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         kind = record.exc_info[0] if record.exc_info else None
