@@ -79,14 +79,13 @@ def same_definition(a: type, b: type) -> bool:
     return (a.__module__, a.__qualname__) == (b.__module__, b.__qualname__)
 
 
-def _check_new(kind: str, name: Any, table: dict[str, Any], cls: type, replace: bool) -> None:
+def _check_new(kind: str, name: Any, old: type | None, cls: type, replace: bool) -> None:
+    """Refuses a name that is not an identifier, or one registered (as ``old``) by another
+    definition than ``cls`` unless ``replace``."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"a {kind}'s name must be an identifier, got {name!r}")
-    if name in table and not replace:
-        old = table[name]
-        if not same_definition(getattr(old, "type", None) or old.config_type, cls):
-            raise ValueError(f"{kind} {name!r} is already registered (replace=True "
-                             "replaces it)")
+    if old is not None and not replace and not same_definition(old, cls):
+        raise ValueError(f"{kind} {name!r} is already registered (replace=True replaces it)")
 
 
 def _check_dataclass(kind: str, name: str, cls: Any) -> None:
@@ -100,7 +99,8 @@ def register_transform(name: str, transform_type: type, *,
                        option_prefix: str | None = None, replace: bool = False) -> type:
     """Registers ``transform_type`` as variant ``name``; ``from_record`` rebuilds it from its
     ``config.json`` fields (default: ``transform_type(**fields)``). Returns the type."""
-    _check_new("transform", name, _TRANSFORMS, transform_type, replace)
+    old = _TRANSFORMS[name].type if isinstance(name, str) and name in _TRANSFORMS else None
+    _check_new("transform", name, old, transform_type, replace)
     _check_dataclass("transform", name, transform_type)
     _TRANSFORMS[name] = TransformEntry(
         name, transform_type, from_record or (lambda fields: transform_type(**fields)),
@@ -113,7 +113,8 @@ def register_learner(name: str, config_type: type, build: Callable[[Any], Learne
                      configure: Callable[[Any], Any] | None = None,
                      option_prefix: str | None = None, replace: bool = False) -> None:
     """Registers learner ``name``: ``build(config)`` makes it from a ``config_type``."""
-    _check_new("learner", name, _LEARNERS, config_type, replace)
+    old = _LEARNERS[name].config_type if isinstance(name, str) and name in _LEARNERS else None
+    _check_new("learner", name, old, config_type, replace)
     _check_dataclass("learner", name, config_type)
     if not isinstance(default_budget, int) or default_budget < 1:
         raise ValueError(f"learner {name!r}: default_budget must be a positive int, "
