@@ -8,7 +8,7 @@ PEER_VENV  := benchmarks/.peer-venv
 PEER_PY    := $(PEER_VENV)/bin/python
 PEER_STAMP := $(PEER_VENV)/.installed-stamp
 
-.PHONY: install train demo test test-slow lint bench bench-peers sweep penalty-sweep tables mutants clean
+.PHONY: install train demo test test-slow lint bench bench-peers sweep penalty-sweep tables report mutants clean
 
 install: $(STAMP)
 
@@ -62,6 +62,11 @@ penalty-sweep: install
 TABLES_ARGS ?=
 tables: install
 	$(PY) experiments/tables.py $(TABLES_ARGS)
+
+# The results report, experiments/results/README.md, from the committed result files
+# (make tables writes it too when its --out is under experiments/results).
+report: install
+	$(PY) -m experiments.results_report
 
 # Mutation check: small bugs in the core code (tools/mutants.toml), each caught by named
 # tests; every file is restored afterwards. Exit status 1 if a mutant survives.

@@ -313,6 +313,21 @@ def _pct(value: float | None) -> str:
     return "n/a" if value is None else f"{100 * value:.1f}%"
 
 
+def chosen_regime_lines(regimes: list[dict[str, Any]]) -> list[str]:
+    """One line per scenario: the regime :func:`choose_regimes` picks and its danger ratio."""
+    lines = []
+    for scenario, regime in choose_regimes(regimes).items():
+        formation = regime["formation"] + (
+            f" {regime['column_spacing']:g}" if regime["column_spacing"] else "")
+        lines.append(
+            f"- {scenario}: h {regime['placement']:g}, {formation}, T "
+            f"{regime['episode_length']}, arena half extent "
+            f"{', '.join(f'{v:g}' for v in regime['arena_half_extent'])}: danger ratio "
+            f"{regime['danger_ratio']:.2f}, "
+            + ("informative" if regime["informative"] else "**not informative** (the closest)"))
+    return lines
+
+
 def markdown(result: dict[str, Any]) -> str:
     grid = result["grid"]
     lines = [
@@ -355,15 +370,7 @@ def markdown(result: dict[str, Any]) -> str:
     lines += ["", "**The regime per scenario** (`choose_regimes`: an informative one, else the "
               "closest: the lowest team_informed / self_reactive danger ratio among regimes "
               "with equal successes and a memoriser clearly worse than the oracle):", ""]
-    for scenario, regime in choose_regimes(grid["regimes"]).items():
-        formation = regime["formation"] + (
-            f" {regime['column_spacing']:g}" if regime["column_spacing"] else "")
-        lines.append(
-            f"- {scenario}: h {regime['placement']:g}, {formation}, T "
-            f"{regime['episode_length']}, arena half extent "
-            f"{', '.join(f'{v:g}' for v in regime['arena_half_extent'])}: danger ratio "
-            f"{regime['danger_ratio']:.2f}, "
-            + ("informative" if regime["informative"] else "**not informative** (the closest)"))
+    lines += chosen_regime_lines(grid["regimes"])
     device = f" on {result['device']}" if result.get("device") else ""
     lines += ["", f"Made by `{result['command']}` at commit `{result['commit']}`{device} "
               f"in {result['seconds']:.0f} s."]

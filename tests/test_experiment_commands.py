@@ -345,10 +345,10 @@ def test_welch_marks_say_which_way_ccr_differs(tables):
     marked at all, whichever its sign."""
     marks = {"plain": {"significant": True, "difference": -0.1, "p": 0.01},
              "pessimistic": {"significant": True, "difference": 0.2, "p": 0.02}}
-    assert tables.welch_symbols(marks) == " ↓* ↑†"
+    assert importlib.import_module("experiments.tables_report").welch_symbols(marks) == " ↓* ↑†"
     marks["plain"]["significant"] = False
-    assert tables.welch_symbols(marks) == " ↑†"
-    assert tables.welch_symbols({}) == ""
+    assert importlib.import_module("experiments.tables_report").welch_symbols(marks) == " ↑†"
+    assert importlib.import_module("experiments.tables_report").welch_symbols({}) == ""
 
 
 def test_an_out_that_is_a_file_is_refused(search, tmp_path, capsys):

@@ -1,6 +1,7 @@
-"""The numbers ``experiments/tables.py`` computes from finished cells, on made-up cells (no
-training): the paper's headline formula, the claim scorecard, rliable's aggregates and the
-training-danger share. The whole grid's pipeline is ``tests/test_tables.py`` (slow)."""
+"""The numbers the tables compute (``experiments/tables_statistics.py``) from finished
+cells, on made-up cells (no training): the paper's headline formula, the claim scorecard,
+rliable's aggregates and the training-danger share.
+The whole grid's pipeline is ``tests/test_tables.py`` (slow)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ccrjax.run.stats import plateau_or_undetermined
+
 SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "tables.py"
 
 
 @pytest.fixture(scope="module")
 def tables():
-    return importlib.import_module("experiments.tables")
+    """The statistics module, which holds the grid's names it computes over."""
+    return importlib.import_module("experiments.tables_statistics")
+
+
+@pytest.fixture(scope="module")
+def report():
+    return importlib.import_module("experiments.tables_report")
 
 
 def made_up_cells(tables, danger, success) -> dict:
@@ -128,20 +137,20 @@ def test_the_training_danger_share_is_ccrs_over_plains(tables):
     assert np.isfinite([share["ci_low"], share["ci_high"]]).all()
 
 
-def test_the_plateau_table_shows_how_far_each_plain_curve_moved(tables):
+def test_the_plateau_table_shows_how_far_each_plain_curve_moved(report):
     """A curve that fails the test shows its rise beside the interval it left; one too
     short to judge says why instead of a number."""
     rising = np.arange(10.0)[None, :] + 0.1 * np.arange(5.0)[:, None]  # 5 seeds, close
     flat = np.array([[-10.0] * 10, [-10.5] * 10])
     records = [
         {"scenario": "turbulence", "algo": "iddpg",
-         "return_plateau": tables.plateau_or_undetermined(rising)},
+         "return_plateau": plateau_or_undetermined(rising)},
         {"scenario": "strong_wind", "algo": "maac",
-         "return_plateau": tables.plateau_or_undetermined(flat)},
+         "return_plateau": plateau_or_undetermined(flat)},
         {"scenario": "hidden_obstacle", "algo": "maddpg",
-         "return_plateau": tables.plateau_or_undetermined(flat[:1])},
+         "return_plateau": plateau_or_undetermined(flat[:1])},
     ]
-    lines = tables.plateau_table(records)
+    lines = report.plateau_table(records)
     assert len(lines) == 2 + 3 + 1  # header, rows, blank
     # Last two points 8.0 and 9.0 (+0.2 on average over seeds), the two before 6 and 7.
     assert lines[2].startswith("| turbulence, IDDPG | 8.70 | 6.70 [")
@@ -149,6 +158,6 @@ def test_the_plateau_table_shows_how_far_each_plain_curve_moved(tables):
     assert lines[3].endswith("| +0.00 (+0.0%) | yes |")
     assert "undetermined: plateau needs curves [seeds >= 2" in lines[4]
     # A return of exactly 0 before gives the change without a percentage, not an error.
-    zero = tables.plateau_table([{"scenario": "turbulence", "algo": "maac",
-                                  "return_plateau": tables.plateau_or_undetermined(flat * 0)}])
+    zero = report.plateau_table([{"scenario": "turbulence", "algo": "maac",
+                                  "return_plateau": plateau_or_undetermined(flat * 0)}])
     assert zero[2].endswith("| +0.00 | yes |")

@@ -1,0 +1,331 @@
+"""The tables' grid: what each of its 18 programs trains, the cells it writes, and the
+reference controllers' rows.
+
+Per scenario and learner, two programs: plain and pessimistic together (plain is the
+pessimistic transform with penalty 0, exactly), and CCR; each trains all its runs at once,
+sharded over every device (:mod:`ccrjax.training.grid`); while one program trains, the next
+one compiles. Every finished cell (scenario, learner, variant) is written atomically to
+``<out>/cells/<scenario>-<algo>-<variant>.json``: per-seed final evaluations and curves,
+whether the return plateaued, the first non-finite iteration per seed, the behaviour
+measurements, the program's times, device and commit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from ccrjax.run.folder import (
+    POINT_METRICS,
+    git_commit,
+    write_atomic,
+)
+from ccrjax.run.stats import plateau_or_undetermined
+from ccrjax.training import ALGOS, TrainConfig, make_env
+from ccrjax.training.grid import GridRuns, GridTraining
+from ccrjax.transforms import Pessimistic
+from ccrjax.transforms.ccr import CCR, CCRConfig
+from ccrjax.viz.analysis import arrival_analysis, followers_closest
+from experiments import protocol
+from experiments.ledger import (
+    Ledger,
+    Partial,
+    ProgramProgress,
+    cell_is_current,
+    device_name,
+    discard_parts,
+    joined_by_seed,
+    log,
+    made_parts,
+    part_made,
+    part_path,
+    part_settings,
+    parts_cover,
+    parts_made_text,
+    read_json,
+    seed_order,
+    settings_record,
+    training_record,
+)
+from experiments.paper import PAPER_SCENARIOS
+from experiments.reference_controllers import evaluate_controller
+
+VARIANTS = ("plain", "pessimistic", "ccr")
+LEARNER_NAMES = protocol.LEARNER_NAMES
+VARIANT_SUFFIX = {"plain": "", "pessimistic": " (Pessimistic)", "ccr": "+CCR"}
+SCENARIO_NAMES = {"hidden_obstacle": "hidden obstacle", "turbulence": "turbulence",
+                  "strong_wind": "strong wind"}
+CONTROLLERS = {"go_to_goal": "go-to-goal (reference)", "oracle": "oracle (reference)"}
+METRICS = POINT_METRICS
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+
+class Settings(protocol.Settings):
+    """What every cell is trained with (a cell made with other settings is redone); the
+    tables need all 18 programs, which may come from several invocations."""
+
+    lam: float  # CCR's lambda (the search's selection)
+    penalty: float  # the pessimistic penalty (the search's selection)
+    seeds: tuple[int, ...] = protocol.TABLE_SEEDS
+    behaviour_episodes: int = 64  # episodes of the behaviour analysis per seed
+    controller_episodes: int = 1024  # episodes of each reference controller
+
+    def config(self, scenario: str, algo: str, variant: str) -> TrainConfig:
+        transform = {"plain": None, "pessimistic": Pessimistic(penalty=self.penalty),
+                     "ccr": CCR(CCRConfig(lam=self.lam))}[variant]
+        return protocol.run_config(self, scenario, algo, variant, transform=transform)
+
+
+QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,
+             eval_episodes=protocol.QUICK_EVAL_EPISODES, behaviour_episodes=4,
+             controller_episodes=16)
+
+
+@dataclasses.dataclass
+class Job:
+    """One program: a scenario and learner, one or two variants, all their seeds."""
+
+    scenario: str
+    algo: str
+    variants: tuple[str, ...]
+    training: GridTraining | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{self.scenario}-{self.algo}-{'+'.join(self.variants)}"
+
+
+def variant_cell_path(out: Path, scenario: str, algo: str, variant: str) -> Path:
+    return out / "cells" / f"{cell_stem(scenario, algo, variant)}.json"
+
+
+def read_cell(path: Path, settings: Settings) -> dict | None:
+    """A finished cell made with ``settings``, or None."""
+    cell = read_json(path)
+    return cell if cell_is_current(cell, settings_record(settings)) else None
+
+
+def build_training(job: Job, settings: Settings) -> GridTraining:
+    seeds = list(settings.seeds)
+    key = jax.random.PRNGKey(2**30 + 11)  # episodes no training evaluation has seen
+    episodes = settings.behaviour_episodes
+    if job.variants == ("plain", "pessimistic"):
+        config = settings.config(job.scenario, job.algo, "pessimistic")
+        penalties = [0.0] * len(seeds) + [settings.penalty] * len(seeds)
+        return GridTraining(config, seeds + seeds, {"penalty": penalties},
+                            record_episodes=episodes, record_key=key)
+    config = settings.config(job.scenario, job.algo, "ccr")
+    return GridTraining(config, seeds, {"lam": [settings.lam] * len(seeds)},
+                        record_episodes=episodes, record_key=key)
+
+
+def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
+    """The finished cells of a job's runs, by variant."""
+    seeds = list(settings.seeds)
+    cells = {}
+    for index, variant in enumerate(job.variants):
+        part = runs.select(np.arange(len(runs.seeds)) // len(seeds) == index)
+        final = part.final
+        cell = {
+            "scenario": job.scenario, "algo": job.algo, "variant": variant,
+            "settings": settings_record(settings), "budget": settings.budget(job.algo),
+            "training": training_record(settings.config(job.scenario, job.algo, variant)),
+            "seeds": part.seeds,
+            "params": {k: [float(x) for x in v] for k, v in part.params.items()},
+            "final": {m: [float(x) for x in final[m]] for m in METRICS},
+            "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},
+            "return_plateau": plateau_or_undetermined(part.history["return"]),
+            "nonfinite_iteration": part.nonfinite_iteration.tolist(),
+            "train_seconds_of_program": runs.run_s,
+            "compile_seconds_of_program": runs.compile_s,
+            "device": device_name(), "commit": git_commit(),
+            "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+        }
+        episodes = part.episodes
+        if job.scenario == "hidden_obstacle":
+            analysis = arrival_analysis(episodes, reach=0.3)
+            cell["arrival"] = {  # per seed and arrival rank, means over episodes
+                "closest": analysis["closest"].mean(axis=1).tolist(),
+                "centre_distance": analysis["centre_distance"].mean(axis=1).tolist(),
+                "followers_closest_successful": followers_closest(analysis).tolist(),
+            }
+        cell["episode"] = {  # the first recorded episode of the first seed, for pictures
+            "position": episodes["position"][0, ..., 0].tolist(),
+            "success": episodes["success"][0, :, 0].tolist(),
+            "danger": (episodes["danger"][0, ..., 0] > 0).tolist(),  # [T, N]
+            "hazard_centre": episodes["hazard_centre"][0, :, 0].tolist(),
+            "hazard_half_extent": episodes["hazard_half_extent"][0, :, 0].tolist(),
+            "ccr_state": (episodes["ccr_state"][0, ..., 0].tolist()
+                          if "ccr_state" in episodes else None),
+        }
+        cells[variant] = cell
+    return cells
+
+
+def grid_jobs() -> list[Job]:
+    """The whole grid's 18 programs."""
+    return [Job(scenario, algo, variants) for scenario in PAPER_SCENARIOS for algo in ALGOS
+            for variants in (("plain", "pessimistic"), ("ccr",))]
+
+
+def jobs_of(settings: Settings) -> list[Job]:
+    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
+    return [job for job in grid_jobs()
+            if job.scenario in settings.scenarios and job.algo in settings.algos]
+
+
+def job_cells(out: Path, job: Job, settings: Settings) -> dict[str, dict] | None:
+    """A program's cells in ``out`` by variant, if all were made with ``settings``."""
+    found = [read_cell(variant_cell_path(out, job.scenario, job.algo, v), settings)
+             for v in job.variants]
+    return dict(zip(job.variants, found, strict=True)) if all(found) else None
+
+
+def grid_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
+    """Every cell of the whole grid found in ``out`` by (scenario, algo, variant), and the
+    names of the programs still missing."""
+    cells, missing = {}, []
+    for job in grid_jobs():
+        found = job_cells(out, job, settings)
+        if found is None:
+            missing.append(job.name)
+        else:
+            cells.update({(job.scenario, job.algo, v): c for v, c in found.items()})
+    return cells, missing
+
+
+def cell_stem(scenario: str, algo: str, variant: str) -> str:
+    """A cell's name: its file in ``cells/``, and its parts' in ``parts/``."""
+    return f"{scenario}-{algo}-{variant}"
+
+
+def job_part_made(out: Path, job: Job, settings: Settings, seeds: tuple[int, ...]) -> bool:
+    """Whether every variant of ``job`` has its part on ``seeds`` in ``out``."""
+    return all(part_made(settings, out, cell_stem(job.scenario, job.algo, variant), seeds)
+               for variant in job.variants)
+
+
+def join_cell_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """A variant's cell joined from ``parts`` (its cells on disjoint seeds), or ``None``
+    while they do not cover ``settings.seeds`` exactly once: every per-seed record in the
+    order of ``settings.seeds``, the plateau check made again over all seeds, the episode
+    of the first seed (as one program keeps it), the programs' times added up, and which
+    seeds were made where, when and at which commit."""
+    if not parts_cover(settings, parts):
+        return None
+    order = seed_order(parts, settings.seeds)
+
+    def joined(records: list[list[Any]]) -> list[Any]:
+        return joined_by_seed(records, order)
+
+    first = parts[0]
+    history = {m: joined([part["history"][m] for part in parts]) for m in first["history"]}
+    times = ("train_seconds_of_program", "compile_seconds_of_program")
+    cell = {
+        **{k: first[k] for k in ("scenario", "algo", "variant", "budget", "training")},
+        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
+        "seeds": list(settings.seeds),
+        **{group: {k: joined([part[group][k] for part in parts]) for k in first[group]}
+           for group in ("params", "final")},
+        "history": history,
+        "return_plateau": plateau_or_undetermined(np.asarray(history["return"])),
+        "nonfinite_iteration": joined([part["nonfinite_iteration"] for part in parts]),
+        **{k: sum(part[k] for part in parts) for k in times},
+        **parts_made_text(parts, times),
+    }
+    if "arrival" in first:
+        cell["arrival"] = {k: joined([part["arrival"][k] for part in parts])
+                           for k in first["arrival"]}
+    cell["episode"] = parts[order[0][0]]["episode"]
+    return cell
+
+
+def join_parts_of(jobs: list[Job], settings: Settings, out: Path) -> None:
+    """Joins every variant of ``jobs`` whose parts in ``out`` cover its seeds into its cell,
+    deleting the parts; says what each still lacks."""
+    for job in jobs:
+        for variant in job.variants:
+            stem = cell_stem(job.scenario, job.algo, variant)
+            parts = made_parts(settings, out, stem)
+            cell = join_cell_parts(settings, parts) if parts else None
+            if cell is None:
+                made = sorted(seed for part in parts for seed in part["seeds"])
+                log(f"{stem}: parts made on seeds {made} of {list(settings.seeds)}")
+                continue
+            write_atomic(variant_cell_path(out, job.scenario, job.algo, variant),
+                         json.dumps(cell) + "\n")
+            discard_parts(out, stem, parts)
+            log(f"{stem}: joined from {len(parts)} parts into its cell")
+
+
+def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) -> int:
+    """Trains every missing program of ``settings`` (compiling the next program while one
+    trains), or with ``settings.part_seeds`` its part on those seeds, then joins the parts
+    that cover their cells' seeds; returns the number of programs trained."""
+    jobs = jobs_of(settings)
+    todo = [job for job in jobs if job_cells(out, job, settings) is None]
+    seeds = settings.part_seeds or settings.seeds
+    trained = part_settings(settings, seeds) if settings.part_seeds else settings
+    budgets = f"budgets { {a: settings.budget(a) for a in ALGOS} }, on {device_name()}"
+    missing = todo
+    if settings.part_seeds:
+        todo = [job for job in missing if not job_part_made(out, job, settings, seeds)]
+        log(f"{len(jobs) - len(missing)} of {len(jobs)} programs already done; of the other "
+            f"{len(missing)}, {len(missing) - len(todo)} made on seeds {list(seeds)}; "
+            f"{len(todo)} parts to train ({len(seeds)} seeds per cell, {budgets})")
+    else:
+        log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
+            f"train ({len(seeds)} seeds per cell, {budgets})")
+    progress = ProgramProgress([(job.name, job.algo,
+                          len(job.variants) * len(seeds) * settings.budget(job.algo))
+                         for job in todo])
+    (out / "cells").mkdir(parents=True, exist_ok=True)
+    # Compilation runs ahead in worker threads (XLA's compiler releases the GIL) while the
+    # main thread trains; the quick mode's programs run for moments, so there it compiles
+    # on both cores at XLA's lowest optimisation level.
+    workers = 2 if settings.quick else 1
+    with ThreadPoolExecutor(max_workers=workers) as compiler:
+        for job in todo:
+            job.training = build_training(job, trained)
+        compiled = [compiler.submit(job.training.compile, not settings.quick) for job in todo]
+        for number, (job, done) in enumerate(zip(todo, compiled, strict=True)):
+            done.result()
+            name = (part_path(out, job.name, seeds).stem if settings.part_seeds
+                    else job.name)
+            runs = partial.train(job.training, name)
+            for variant, cell in cells_of(job, runs, trained).items():
+                path = (part_path(out, cell_stem(job.scenario, job.algo, variant), seeds)
+                        if settings.part_seeds else
+                        variant_cell_path(out, job.scenario, job.algo, variant))
+                path.parent.mkdir(exist_ok=True)
+                write_atomic(path, json.dumps(cell) + "\n")
+            partial.discard(name)
+            job.training = None  # free the compiled program
+            ledger.record(number + 1)
+            log(progress.finished(number, runs.run_s + runs.compile_s))
+    if settings.part_seeds:
+        join_parts_of(missing, settings, out)
+    return len(todo)
+
+
+def reference_rows(settings: Settings) -> dict[tuple[str, str], dict[str, float]]:
+    """The reference controllers' metrics per (scenario, controller), over
+    ``controller_episodes`` fresh episodes (no training, no seeds)."""
+    rows = {}
+    key = jax.random.PRNGKey(2**30 + 12)
+    for scenario in PAPER_SCENARIOS:
+        env = make_env(settings.config(scenario, "maddpg", "plain"),
+                       settings.controller_episodes)
+        for name in CONTROLLERS:
+            metrics = evaluate_controller(env, name, key)
+            rows[(scenario, name)] = {m: float(v) for m, v in metrics.items()}
+    return rows
+
