@@ -12,7 +12,9 @@ penalty 0 is exactly the plain learner; CCR's lambda 0 leaves the reward unchang
 its robots still observe the shared scores) and writes ``sweep.md`` (a table of the metrics per
 value, mean and 95% interval over seeds), ``sweep.json`` (per-seed values) and
 ``tradeoff.png`` (dangerous-behaviour frequency against success rate, one point per
-value with its intervals).
+value with its intervals). Started as several processes (``--coordinator``,
+``--num-processes``, ``--process-id``: :mod:`ccrjax.run.distributed`), each trains its share
+of the runs and process 0 writes the results.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import jax
 from ccrjax import cli
 from ccrjax.cli import UsageError
 from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.run import distributed
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.stats import format_mean_ci
 from ccrjax.run.sweep_grid import (
@@ -88,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="output folder (default: %(default)s)")
     parser.add_argument("--force", action="store_true",
                         help="replace the sweep that --out already holds")
+    distributed.add_options(parser)
     return parser
 
 
@@ -102,7 +106,8 @@ def check_sweep_out(out: Path, force: bool) -> None:
     elif out.is_dir() and any(out.iterdir()):
         raise UsageError(f"--out {out} holds other files than a sweep's: name a new or "
                          "empty folder")
-    cli.make_folder(out)
+    if distributed.is_primary():  # several processes: process 0 writes the results
+        cli.make_folder(out)
 
 
 def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
@@ -139,6 +144,8 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
         "grid_seeds": grid_seeds, "grid_values": grid_values,
         "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
     }
+    if not distributed.is_primary():
+        return result
     write_atomic(args.out / "sweep.json", json.dumps(result, indent=2) + "\n")
     write_atomic(args.out / "sweep.md", sweep_table(result))
     draw_tradeoff(result, args.out / "tradeoff.png")
@@ -188,11 +195,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    distributed.initialize(PROG, args)
     cli.enable_compilation_cache(cli.default_cache_dir())
     try:
         result = run_sweep(args)
     except (UsageError, ValueError) as error:
         cli.fail(PROG, str(error))
+    if not distributed.is_primary():
+        return 0
     print(sweep_table(result))
     print(f"wrote {args.out / 'sweep.md'}, {args.out / 'sweep.json'}, "
           f"{args.out / 'tradeoff.png'} (training {result['run_s']:.0f} s, compiling "

@@ -21,8 +21,6 @@ at the candidates 3M, 4.5M and 6M; the budget for all is the smallest candidate 
 every plain learner's check passes (the summary's last line, once the 9 cells exist):
 
     python experiments/budgets.py --tables-seeds --out experiments/results/longer_budget
-    python experiments/budgets.py --tables-seeds --part-seeds 0 1 --algos iddpg \
-        --scenarios turbulence --out experiments/results/longer_budget --force
 
 Each scenario and learner is one vmapped program. Its cell is written to
 ``<out>/cells/<scenario>-<algo>.json`` when it finishes (curves, checks, proposal, wall
@@ -30,10 +28,10 @@ time, device, commit); a re-run skips the cells made with the same settings, wha
 scenarios and learners it names, so the grid can be spread over invocations and machines.
 Then ``budgets.json`` (every cell of the folder made with these settings, whichever
 invocation made it, and every invocation), ``budgets.md`` and ``curves_<algo>.png``
-(return, success and danger along training, one line per scenario). ``--part-seeds`` trains
-a program on some of its seeds (a machine that cannot train a whole program at one
-sitting): each part waits in ``<out>/parts/`` until the parts cover the seeds, then they
-are joined into the cell one program makes (each run depends only on its seed).
+(return, success and danger along training, one line per scenario). Started as several
+processes (``--coordinator``, ``--num-processes``, ``--process-id``:
+:mod:`ccrjax.run.distributed`), each trains its share of every program's runs and process 0
+writes the results.
 """
 
 from __future__ import annotations
@@ -54,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from ccrjax import cli
+from ccrjax.run import distributed
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.stats import format_mean_ci, plateau, plateau_or_undetermined
 from ccrjax.run.sweep_grid import nonfinite_runs, nonfinite_text, summarise
@@ -62,10 +61,8 @@ from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import Curves, draw_curves
 from experiments import protocol
 from experiments.ledger import (
-    PARTS,
     STOPPED_KEPT,
     Partial,
-    ProgramProgress,
     add_checkpoint_option,
     add_out_options,
     cell_is_current,
@@ -73,23 +70,12 @@ from experiments.ledger import (
     device_name,
     duration,
     invocation_line,
-    join_pair_parts,
-    joined_by_seed,
     log,
     open_experiment,
-    overlapping_part,
-    part_made,
-    part_path,
-    part_seeds_from,
-    part_settings,
-    parts_cover,
-    parts_made_text,
     plan_pairs,
     read_json,
-    seed_order,
     settings_record,
     train_pairs,
-    train_part_programs,
     training_record,
 )
 from experiments.paper import PAPER_SCENARIOS
@@ -167,14 +153,14 @@ def one_budget_for_all(cells: list[dict[str, Any]]) -> dict[str, Any]:
             "failing": failing}
 
 
-def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial,
-               name: str | None = None) -> dict[str, Any]:
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
+               ) -> dict[str, Any]:
     """One scenario and learner's plain runs on ``settings.seeds``: the curves (checked by
-    :func:`checked`), in one program checkpointed as ``name`` (default: the pair's)."""
+    :func:`checked`), in one program checkpointed under the pair's name."""
     config = settings.config(scenario, algo)
     training = GridTraining(config, settings.seeds)
     training.compile(not settings.quick)
-    runs = partial.train(training, name or f"{scenario}-{algo}")
+    runs = partial.train(training, f"{scenario}-{algo}")
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "training": training_record(config),
@@ -186,48 +172,6 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial,
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
     }
-
-
-def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The pair's cell joined from ``parts`` (its cells on disjoint seeds), or ``None``
-    while they do not cover ``settings.seeds`` exactly once: each seed's curves in the order
-    of ``settings.seeds``, the programs' times added up, and which seeds were made where,
-    when and at which commit."""
-    if not parts_cover(settings, parts):
-        return None
-    order = seed_order(parts, settings.seeds)
-    first = parts[0]  # parts made with the same settings: the same evaluation steps
-    times = ("train_s", "compile_s")
-    return {
-        **{k: first[k] for k in ("scenario", "algo", "budget", "training")},
-        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
-        "seeds": list(settings.seeds), "env_steps": first["env_steps"],
-        "curves": {m: joined_by_seed([part["curves"][m] for part in parts], order)
-                   for m in first["curves"]},
-        "nonfinite_iteration": joined_by_seed([part["nonfinite_iteration"] for part in parts],
-                                              order),
-        **{k: sum(part[k] for part in parts) for k in times},
-        **parts_made_text(parts, times),
-    }
-
-
-def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
-                cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
-    """Trains the part on ``settings.part_seeds`` of every pair in ``todo`` that lacks it,
-    and joins each pair whose parts then cover its seeds into its cell (into ``cells``)."""
-    seeds = settings.part_seeds
-    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds)]
-    log(f"{len(todo) - len(train)} of {len(todo)} parts on seeds {list(seeds)} already made; "
-        f"{len(train)} to train ({len(seeds)} runs each, on {device_name()})")
-    progress = ProgramProgress([(part_path(out, f"{s}-{a}", seeds).stem, a,
-                          len(seeds) * settings.budget(a)) for s, a in train])
-    trained = part_settings(settings, seeds)
-    train_part_programs(train, out, seeds, (), progress, partial, ledger,
-                        lambda s, a, name: train_cell(trained, s, a, partial, name))
-    join_pair_parts(settings, out, todo, cells, lambda parts: join_parts(settings, parts),
-                    lambda parts: "parts made on seeds "
-                    f"{sorted(seed for part in parts for seed in part['seeds'])} of "
-                    f"{list(settings.seeds)}")
 
 
 def checked(cell: dict[str, Any], settings: Settings) -> dict[str, Any]:
@@ -341,7 +285,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
                for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
     runs = sum(len(cell["seeds"]) for cell in result["cells"])
     lines += [*rule_lines(result), "", nonfinite_text(skipped, f"the {runs} runs") if runs else
-              f"No cell is made yet (parts wait in {PARTS}/ until they cover the seeds)."]
+              "No cell is made yet."]
     return "\n".join(lines) + "\n"
 
 
@@ -392,11 +336,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked at the candidates "
                         + ", ".join(f"{c:,}" for c in LONGER_CANDIDATES)
                         + " (not with --candidate-every)")
-    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
-                        help="train only these of the seeds, as a part of each program kept "
-                        "in <out>/parts/ and joined into its cell once parts cover all its "
-                        "seeds (for a machine that cannot train a whole program at one "
-                        "sitting)")
     parser.add_argument("--eval-episodes", type=cli.positive_int, default=None,
                         help="fresh episodes per evaluation and seed (default: "
                         f"{protocol.EVAL_EPISODES})")
@@ -404,6 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=protocol.quick_help("the seeds of --seeds"))
     add_out_options(parser, "budgets", default_text="runs/budgets")
     add_checkpoint_option(parser)
+    distributed.add_options(parser)
     return parser
 
 
@@ -441,8 +381,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
         fields.update(candidate_budgets=LONGER_CANDIDATES,
                       steps=LONGER_STEPS if args.steps is None else args.steps)
     fields.update(seeds=seeds, quick=args.quick, scenarios=tuple(dict.fromkeys(args.scenarios)),
-                  algos=tuple(dict.fromkeys(args.algos)),
-                  part_seeds=part_seeds_from(args.part_seeds, seeds, "budget check"))
+                  algos=tuple(dict.fromkeys(args.algos)))
     settings = Settings(**fields)
     for scenario in settings.scenarios:  # every configuration validated before compiling
         for algo in settings.algos:
@@ -459,30 +398,27 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    distributed.initialize(PROG, args)
     out = args.out or Path("runs/budgets")
 
     def settings_of() -> Settings:
         check_quick_out(args.quick, args.out)
-        settings = settings_from(args)
-        if settings.part_seeds and (overlap := overlapping_part(settings, out)):
-            raise cli.UsageError(overlap)
-        return settings
+        return settings_from(args)
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     cells, todo, progress = plan_pairs(settings, out, len(settings.seeds),
                                        f"{len(settings.seeds)} seeds each")
     partial = Partial(out, args.checkpoint_minutes)
-    if settings.part_seeds:
-        train_parts(settings, out, todo, cells, partial, ledger)
-    else:
-        for (scenario, algo), cell in train_pairs(
-                todo, out, partial, ledger, progress,
-                lambda s, a: train_cell(settings, s, a, partial)):
-            cells[(scenario, algo)] = cell
-            found = checked(cell, settings)
-            log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
-                f"proposed budget {found['proposed_budget']}")
+    for (scenario, algo), cell in train_pairs(
+            todo, out, partial, ledger, progress,
+            lambda s, a: train_cell(settings, s, a, partial)):
+        cells[(scenario, algo)] = cell
+        found = checked(cell, settings)
+        log(f"  {algo} {scenario}: plateaued at the end {found['plateaued_at_budget']}, "
+            f"proposed budget {found['proposed_budget']}")
     ledger.record(len(todo), finished=True)
+    if not distributed.is_primary():  # process 0 writes the summary
+        return 0
     # The summary reports every cell of the folder made with these settings, whichever
     # invocation made it (the budgets select nothing, so nothing depends on which are named).
     record = settings_record(settings)

@@ -27,6 +27,7 @@ from typing import Any
 import jax
 
 from ccrjax import cli
+from ccrjax.run import distributed
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.grid_checkpoint import discard, train_resumably
 from ccrjax.run.sweep_grid import nonfinite_log
@@ -111,7 +112,8 @@ class Partial:
     def discard(self, name: str) -> None:
         """Deletes cell ``name``'s checkpoint once its results are written."""
         discard(self.folder(name))
-        if (self.out / PARTIAL).is_dir() and not any((self.out / PARTIAL).iterdir()):
+        if (distributed.is_primary() and (self.out / PARTIAL).is_dir()
+                and not any((self.out / PARTIAL).iterdir())):
             (self.out / PARTIAL).rmdir()
 
 
@@ -124,16 +126,10 @@ def settings_record(settings: Any) -> dict[str, Any]:
 # Settings that choose which cells an invocation makes, or how they are summarised, but
 # not what a cell holds: a cell made by a narrower or wider invocation (or one checked
 # against other candidate budgets) is kept, not trained again.
+# (``part_seeds`` and ``part_values`` are in the records of cells made before grids were
+# spread over processes instead of made in parts.)
 NOT_IN_CELLS = ("scenarios", "algos", "candidate_every", "candidate_budgets", "part_seeds",
                 "part_values", "controller_episodes")
-
-
-# A program too long for one sitting can be made in parts (``--part-seeds``, and for a search
-# ``--part-values``): each part is the program on some of the seeds (and of the searched
-# values), kept in ``<out>/parts/`` until the parts cover every run, then joined into the
-# cell one program would have made (each run depends only on its seed and parameters) and
-# deleted.
-PARTS = "parts"
 
 
 def folder_settings(record: dict[str, Any]) -> dict[str, Any]:
@@ -141,186 +137,6 @@ def folder_settings(record: dict[str, Any]) -> dict[str, Any]:
     :data:`NOT_IN_CELLS`, which say what one invocation made there (its scope, kept in its
     own invocation record) and so differ between the invocations of one folder."""
     return {k: v for k, v in record.items() if k not in NOT_IN_CELLS}
-
-
-def part_seeds_from(requested: list[int] | None, seeds: tuple[int, ...], what: str
-                    ) -> tuple[int, ...]:
-    """``--part-seeds`` checked against the ``seeds`` of the ``what`` (raising
-    :class:`ccrjax.cli.UsageError`): sorted, or ``()`` when none or all are named."""
-    part = tuple(sorted(set(requested or ())))
-    outside = [seed for seed in part if seed not in seeds]
-    if outside:
-        raise cli.UsageError(f"--part-seeds {' '.join(map(str, outside))} not among the "
-                             f"{what}'s seeds {seeds[0]}-{seeds[-1]}")
-    return () if part == tuple(sorted(seeds)) else part
-
-
-def part_path(out: Path, stem: str, seeds: tuple[int, ...], values: tuple[float, ...] = ()
-              ) -> Path:
-    """Where the part on ``seeds`` (and, when only some, the searched ``values``) of the
-    cell named ``stem`` is kept."""
-    name = f"{stem}-seeds-{'-'.join(str(seed) for seed in seeds)}"
-    if values:
-        name += f"-values-{'-'.join(f'{value:g}' for value in values)}"
-    return out / PARTS / f"{name}.json"
-
-
-def part_settings(settings: Any, seeds: tuple[int, ...]) -> Any:
-    """The settings a part on ``seeds`` is trained with: ``settings`` on those seeds."""
-    return dataclasses.replace(settings, seeds=tuple(seeds), part_seeds=())
-
-
-def part_values_of(part: dict[str, Any]) -> tuple[float, ...]:
-    """The searched values a part was trained on when it holds only some (``()``: all of
-    them, as every part made before ``--part-values`` existed)."""
-    return tuple(float(value) for value in part.get("part_values", ()))
-
-
-def made_parts(settings: Any, out: Path, stem: str) -> list[dict[str, Any]]:
-    """The parts of the cell named ``stem`` in ``out`` made with ``settings`` on some of its
-    seeds, in the order of their first seed (then of their first value); parts of other
-    settings are left out."""
-    found = []
-    for path in sorted((out / PARTS).glob(f"{stem}-seeds-*.json")):
-        part = read_json(path)
-        seeds = tuple((part or {}).get("settings", {}).get("seeds", ()))
-        if (seeds and set(seeds) <= set(settings.seeds)
-                and path == part_path(out, stem, seeds, part_values_of(part))
-                and cell_is_current(part, settings_record(part_settings(settings, seeds)))):
-            found.append(part)
-    return sorted(found, key=lambda part: (settings.seeds.index(part["settings"]["seeds"][0]),
-                                           part_values_of(part)))
-
-
-def part_made(settings: Any, out: Path, stem: str, seeds: tuple[int, ...],
-              values: tuple[float, ...] = ()) -> bool:
-    """Whether the cell named ``stem`` has its part on ``seeds`` (and ``values``) in
-    ``out`` (made with ``settings``)."""
-    return any(tuple(part["settings"]["seeds"]) == seeds and part_values_of(part) == values
-               for part in made_parts(settings, out, stem))
-
-
-def part_runs(part: dict[str, Any], values: tuple[Any, ...] = (None,)) -> list[tuple]:
-    """The (value, seed) runs a part holds: its values (all of ``values`` where it holds
-    every one) with each of its seeds."""
-    return [(value, seed) for value in (part_values_of(part) or values)
-            for seed in part["settings"]["seeds"]]
-
-
-def parts_cover(settings: Any, parts: list[dict[str, Any]], values: tuple[Any, ...] = (None,)
-                ) -> bool:
-    """Whether ``parts`` hold every run of ``settings`` (each of its seeds with each of
-    ``values``, a search's; ``(None,)`` for a grid that searches none) exactly once."""
-    runs = [run for part in parts for run in part_runs(part, values)]
-    return (len(runs) == len(set(runs))
-            and set(runs) == {(value, seed) for value in values for seed in settings.seeds})
-
-
-def parts_made_text(parts: list[dict[str, Any]], times: tuple[str, ...]) -> dict[str, Any]:
-    """A joined cell's provenance: the parts' devices and commits (each once, in the order
-    the parts were made) and the date of the last part made, whatever the order of its
-    seeds, and per part (in the cell's order) its seeds (and values, where only some),
-    device, commit, date and ``times``. Dates are ``YYYY-MM-DD HH:MM UTC``, so their text
-    orders them."""
-    made_in_order = sorted(parts, key=lambda part: part["date"])
-
-    def made(key: str) -> str:
-        return "; ".join(dict.fromkeys(str(part[key]) for part in made_in_order))
-
-    return {"device": made("device"), "commit": made("commit"),
-            "date": made_in_order[-1]["date"],
-            "parts": [{"seeds": part["settings"]["seeds"],
-                       **({"values": list(part_values_of(part))} if part_values_of(part)
-                          else {}),
-                       **{k: part[k] for k in ("device", "commit", "date", *times)}}
-                      for part in parts]}
-
-
-def seed_order(parts: list[dict[str, Any]], seeds: tuple[int, ...]) -> list[tuple[int, int]]:
-    """Where each of ``seeds`` is among ``parts`` (cells on disjoint seeds, each listing its
-    ``seeds``): (the part's index, the seed's position in it), in the order of ``seeds``."""
-    at = {seed: (index, position) for index, part in enumerate(parts)
-          for position, seed in enumerate(part["seeds"])}
-    return [at[seed] for seed in seeds]
-
-
-def joined_by_seed(records: list[list[Any]], order: list[tuple[int, int]]) -> list[Any]:
-    """One per-seed list per part (``records``, in the parts' order) joined into one, in
-    the order of :func:`seed_order`."""
-    return [records[index][position] for index, position in order]
-
-
-def overlapping_part(settings: Any, out: Path, grid_values: tuple[Any, ...] = (None,),
-                     values: tuple[float, ...] = ()) -> str | None:
-    """Why the part on ``settings.part_seeds`` (and, for a search, its ``values`` of
-    ``grid_values``) cannot be joined with the parts in ``out`` (some of its runs are already
-    in another part, so no join would hold each run once), or ``None``; asking again for a
-    part that exists is no overlap (it is skipped)."""
-    seeds = settings.part_seeds or settings.seeds
-    asked = {(value, seed) for value in values or grid_values for seed in seeds}
-    for scenario in settings.scenarios:
-        for algo in settings.algos:
-            for part in made_parts(settings, out, f"{scenario}-{algo}"):
-                same = (tuple(part["settings"]["seeds"]) == seeds
-                        and part_values_of(part) == values)
-                held = asked & set(part_runs(part, grid_values))
-                if held and not same:
-                    value, seed = min(held)
-                    name = part_path(out, f"{scenario}-{algo}", tuple(part["settings"]["seeds"]),
-                                     part_values_of(part)).name
-                    if value is None:  # no searched values: the seeds alone overlap
-                        return (f"--part-seeds: {scenario}-{algo} already has seed {seed} in "
-                                f"{PARTS}/{name}; ask for seeds that no part holds")
-                    return (f"--part-seeds/--part-values: {scenario}-{algo} already has value "
-                            f"{value:g} on seed {seed} in {PARTS}/{name}; ask for runs that no "
-                            "part holds")
-    return None
-
-
-def train_part_programs(pairs: list[tuple[str, str]], out: Path, seeds: tuple[int, ...],
-                        values: tuple[float, ...], progress: ProgramProgress, partial: Partial,
-                        ledger: Ledger, train_part: Callable[[str, str, str], dict[str, Any]]
-                        ) -> None:
-    """Trains the part on ``seeds`` (and ``values``) of each (scenario, algo) in ``pairs``
-    with ``train_part(scenario, algo, name)``, ``name`` its file's stem, writes it into
-    ``<out>/parts/``, drops its checkpoint, records the invocation's progress and logs it."""
-    for index, (scenario, algo) in enumerate(pairs):
-        path = part_path(out, f"{scenario}-{algo}", seeds, values)
-        part = train_part(scenario, algo, path.stem)
-        path.parent.mkdir(exist_ok=True)
-        write_atomic(path, json.dumps(part) + "\n")
-        partial.discard(path.stem)
-        ledger.record(index + 1)
-        log(progress.finished(index, part["train_s"] + part["compile_s"]))
-
-
-def join_pair_parts(settings: Any, out: Path, pairs: list[tuple[str, str]],
-                    cells: dict[tuple[str, str], dict],
-                    join: Callable[[list[dict[str, Any]]], dict[str, Any] | None],
-                    lacking: Callable[[list[dict[str, Any]]], str]) -> None:
-    """Joins each (scenario, algo) of ``pairs`` whose parts in ``out`` ``join`` into its
-    cell (written, and put into ``cells``), deleting the parts; logs what the others have
-    (``lacking(parts)``)."""
-    for scenario, algo in pairs:
-        parts = made_parts(settings, out, f"{scenario}-{algo}")
-        cell = join(parts) if parts else None
-        if cell is None:
-            log(f"{scenario}-{algo}: {lacking(parts)}")
-            continue
-        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
-        discard_parts(out, f"{scenario}-{algo}", parts)
-        log(f"{scenario}-{algo}: joined from {len(parts)} parts into its cell")
-        cells[(scenario, algo)] = cell
-
-
-def discard_parts(out: Path, stem: str, parts: list[dict[str, Any]]) -> None:
-    """Deletes the joined ``parts`` of the cell named ``stem`` (and ``parts/`` once empty)."""
-    for part in parts:  # another invocation in the folder may have joined them just now
-        path = part_path(out, stem, tuple(part["settings"]["seeds"]), part_values_of(part))
-        path.unlink(missing_ok=True)
-    with contextlib.suppress(FileNotFoundError, OSError):  # gone, or holds other parts
-        if not any((out / PARTS).iterdir()):
-            (out / PARTS).rmdir()
 
 
 def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
@@ -423,14 +239,10 @@ def add_no_train_option(parser: Any) -> None:
                         "changed setting or default never starts a long retraining unasked)")
 
 
-def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path,
-                     parts: str = "") -> None:
-    """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` when something would
-    have to be trained: a part asked for (``parts`` names its options), or any of the
-    named ``cells`` (name to path) the summary needs that is not what ``record`` would make
+def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path) -> None:
+    """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` when any of the named
+    ``cells`` (name to path) the summary needs is not what ``record`` would make
     (:func:`why_not_current`), naming each and why."""
-    if parts:
-        raise cli.UsageError(f"--no-train trains nothing, so it cannot make parts ({parts})")
     problems = [f"{name}: {why}" for name, path in cells.items()
                 if (why := why_not_current(read_json(path), record))]
     if problems:
@@ -492,9 +304,11 @@ def open_experiment(prog: str, argv: list[str] | None, out: Path, force: bool,
         problem = check_experiment(out, prog, settings_record(settings), force)
         if problem:
             raise cli.UsageError(problem)
-        cli.make_folder(out)
+        if distributed.is_primary():
+            cli.make_folder(out)
     except (cli.UsageError, ValueError) as error:
         cli.fail(prog, str(error))
+    distributed.barrier("out folder made")
     cli.enable_compilation_cache(cli.default_cache_dir())
     command = " ".join([prog, *(argv if argv is not None else sys.argv[1:])])
     ledger = Ledger(out, settings, command, prog)
@@ -525,14 +339,16 @@ def plan_pairs(settings: Any, out: Path, runs: int, runs_text: str
     record = settings_record(settings)
     for scenario, algo in pairs:
         cell = read_json(cell_path(out, scenario, algo))
-        if cell_is_current(cell, record):
+        # Several processes train the same programs in the same order: process 0's list.
+        if distributed.agree(cell_is_current(cell, record)):
             cells[(scenario, algo)] = cell
         else:
             todo.append((scenario, algo))
     log(f"{len(pairs) - len(todo)} of {len(pairs)} programs already done; {len(todo)} to train "
         f"({runs_text}, on {device_name()})")
     progress = ProgramProgress([(f"{s}-{a}", a, runs * settings.budget(a)) for s, a in todo])
-    (out / "cells").mkdir(parents=True, exist_ok=True)
+    if distributed.is_primary():
+        (out / "cells").mkdir(parents=True, exist_ok=True)
     return cells, todo, progress
 
 
@@ -544,7 +360,8 @@ def train_pairs(todo: list[tuple[str, str]], out: Path, partial: Partial, ledger
     each pair with its cell as it is written (the searches' and the budgets' loop)."""
     for index, (scenario, algo) in enumerate(todo):
         cell = train_cell(scenario, algo)
-        write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
+        if distributed.is_primary():
+            write_atomic(cell_path(out, scenario, algo), json.dumps(cell) + "\n")
         partial.discard(f"{scenario}-{algo}")
         ledger.record(index + 1)
         log(progress.finished(index, cell["train_s"] + cell["compile_s"]))
@@ -651,6 +468,8 @@ class Ledger:
         return [*self.previous[:at], self.current, *self.previous[at:]]
 
     def record(self, trained: int, finished: bool = False) -> None:
+        if not distributed.is_primary():  # several processes: process 0 keeps the records
+            return
         self.current.update(wall_time_s=time.perf_counter() - self.start,
                             programs_trained=trained, finished=finished)
         with locked(self.out):

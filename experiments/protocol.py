@@ -94,9 +94,6 @@ class Settings:
     (``ledger.cell_is_current``)."""
 
     seeds: tuple[int, ...]
-    # Which of the seeds this invocation trains, as a part of each program (empty: all of
-    # them); not part of what a cell holds (ledger.NOT_IN_CELLS, ledger.made_parts).
-    part_seeds: tuple[int, ...] = ()
     steps: int | None = None  # None: the protocol's budget of each learner
     eval_every: int = EVAL_EVERY
     eval_episodes: int = EVAL_EPISODES

@@ -445,13 +445,18 @@ def write_report(results: Path = RESULTS) -> Path:
     return path
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> cli.Parser:
     parser = cli.Parser(prog=PROG, description=__doc__.split("\n")[0])
     parser.add_argument("--results", type=Path, default=RESULTS,
                         help="the results folder (default: experiments/results)")
     parser.add_argument("--check", action="store_true",
                         help="write nothing; exit 1 if the folder's README.md is not the "
                         "report its files give")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if not args.results.is_dir():
         parser.error(f"--results: {args.results} is not a folder")

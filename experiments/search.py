@@ -24,19 +24,9 @@ with the same settings. Then: ``search.json`` (everything, and the selected valu
 threshold and choice marked) and
 ``tradeoff_pairs.png`` (one panel per pair).
 
-A program too long for one sitting (on this project's 2-core CPU a MAAC pair's 21 runs take
-about 2.8 hours, and a program's partial checkpoints stay on the machine that made them) can
-be made in parts: ``--part-seeds 101`` trains every value on seed 101 alone and keeps that
-part in ``<out>/parts/``; once a pair's parts cover all its seeds, they are joined into the
-pair's cell, the same runs in the same order as one program would hold (every run depends
-only on its seed and value; to float32 rounding, as a program of another size may order its
-arithmetic otherwise), and the parts are deleted. ``--part-values 0 0.3 1`` narrows a part
-further, to some of the values (0, the reference, among them or not), so that a sitting's
-time left after whole parts can still be used; the parts of a pair may then differ in seeds
-and values, as long as together they hold each value on each seed once. A part's
-invocation writes no summary (it would cover only the pairs it names, over a folder's whole
-summary); the same command without ``--part-seeds`` and ``--part-values`` writes it,
-training nothing for the pairs whose cells exist.
+Started as several processes (``--coordinator``, ``--num-processes``, ``--process-id``:
+:mod:`ccrjax.run.distributed`), each trains its share of every program's runs, on one
+machine or several, and process 0 writes the results.
 """
 
 from __future__ import annotations
@@ -57,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from ccrjax import cli
+from ccrjax.run import distributed
 from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
 from ccrjax.run.sweep_grid import (
@@ -72,10 +63,8 @@ from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
 from experiments import protocol
 from experiments.ledger import (
-    PARTS,
     STOPPED_KEPT,
     Partial,
-    ProgramProgress,
     add_checkpoint_option,
     add_no_train_option,
     add_out_options,
@@ -85,23 +74,12 @@ from experiments.ledger import (
     device_name,
     duration,
     invocation_line,
-    join_pair_parts,
-    log,
     open_experiment,
-    overlapping_part,
-    part_made,
-    part_path,
-    part_seeds_from,
-    part_settings,
-    part_values_of,
-    parts_cover,
-    parts_made_text,
     plan_pairs,
     read_json,
     refuse_untrained,
     settings_record,
     train_pairs,
-    train_part_programs,
     training_record,
 )
 from experiments.paper import PAPER_SCENARIOS
@@ -118,14 +96,6 @@ class Settings(protocol.Settings):
     variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
     values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
-    # Which of the grid's values (0 among them) this invocation trains, as a part of each
-    # pair with ``part_seeds`` (empty: all of them); not part of what a cell holds.
-    part_values: tuple[float, ...] = ()
-
-    @property
-    def in_parts(self) -> bool:
-        """Whether this invocation trains parts of its pairs rather than whole cells."""
-        return bool(self.part_seeds or self.part_values)
 
     def config(self, scenario: str, algo: str) -> TrainConfig:
         return protocol.run_config(self, scenario, algo, self.variant)
@@ -136,77 +106,29 @@ class Settings(protocol.Settings):
         return [0.0, *self.values]
 
 
-def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial,
-               name: str | None = None, values: tuple[float, ...] = ()) -> dict[str, Any]:
-    """The pair's cell: every value of ``settings.grid_values`` (or only ``values``, for a
-    part) on every seed, in one program checkpointed as ``name`` (default: the pair's)."""
+def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
+               ) -> dict[str, Any]:
+    """The pair's cell: every value of ``settings.grid_values`` on every seed, in one
+    program checkpointed under the pair's name."""
     config = settings.config(scenario, algo)
-    values, seeds = list(values or settings.grid_values), list(settings.seeds)
+    values, seeds = list(settings.grid_values), list(settings.seeds)
     parameter, grid_seeds, grid_values = search_grid(config, values, seeds)
     training = GridTraining(config, grid_seeds, {parameter: grid_values})
     training.compile(not settings.quick)
-    runs = partial.train(training, name or f"{scenario}-{algo}")
+    runs = partial.train(training, f"{scenario}-{algo}")
     history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
                                                       "danger_frequency")}
     reference = runs.history["return"][np.asarray(grid_values) == 0.0]
-    levelled = (plateau_or_undetermined(reference) if len(reference) else
-                {"plateaued": None, "why": "value 0 not in this part"})
     return {
         "scenario": scenario, "algo": algo, "settings": settings_record(settings),
         "budget": settings.budget(algo), "training": training_record(config),
         "parameter": parameter, "grid_seeds": grid_seeds, "grid_values": grid_values,
-        **({"part_values": values} if values != settings.grid_values else {}),
         "rows": search_rows(runs, values, grid_values, seeds),
         "env_steps": runs.history["env_steps"][0].tolist(), "history": history,
-        "plain_return_plateau": levelled,
+        "plain_return_plateau": plateau_or_undetermined(reference),
         "nonfinite_iteration": runs.nonfinite_iteration.tolist(),
         "compile_s": runs.compile_s, "train_s": runs.run_s, "device": device_name(),
         "commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M %Z"),
-    }
-
-
-def join_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The pair's cell joined from ``parts`` (cells of the same pair on disjoint runs), or
-    ``None`` while they do not hold every value on every seed exactly once. The runs are put
-    in the order one program would hold (values outer, seeds inner), each value's per-seed
-    metrics summarised again over all seeds, and the plateau check made again on value 0's
-    returns over all seeds; the programs' times are added up, and ``parts`` says which seeds
-    and values were made where, when and at which commit."""
-    if not parts_cover(settings, parts, tuple(settings.grid_values)):
-        return None
-    first = parts[0]
-    run_at = {(value, seed): (index, position) for index, part in enumerate(parts)
-              for position, (value, seed) in enumerate(zip(part["grid_values"],
-                                                           part["grid_seeds"], strict=True))}
-    grid_seeds = [int(seed) for _ in settings.grid_values for seed in settings.seeds]
-    grid_values = [float(value) for value in settings.grid_values for _ in settings.seeds]
-    order = [run_at[(value, seed)] for value, seed in zip(grid_values, grid_seeds, strict=True)]
-    history = {m: [parts[i]["history"][m][j] for i, j in order] for m in first["history"]}
-    rows = []
-    for value in settings.grid_values:
-        held = [part_row for part in parts for part_row in part["rows"]
-                if part_row["value"] == float(value)]  # the value's rows, one per part
-        row: dict[str, Any] = {"value": float(value), "seeds": list(settings.seeds)}
-        for metric in held[0]:
-            if metric in row:
-                continue
-            per_seed = {seed: number for part_row in held for seed, number in
-                        zip(part_row["seeds"], part_row[metric]["per_seed"], strict=True)}
-            row[metric] = summarise(np.array([per_seed[seed] for seed in settings.seeds]),
-                                    metric)
-        rows.append(row)
-    reference = np.asarray(history["return"])[np.asarray(grid_values) == 0.0]
-    return {
-        **{k: first[k] for k in ("scenario", "algo", "budget", "training", "parameter",
-                                 "env_steps")},
-        "settings": settings_record(dataclasses.replace(settings, part_seeds=(),
-                                                        part_values=())),
-        "grid_seeds": grid_seeds, "grid_values": grid_values, "rows": rows,
-        "history": history, "plain_return_plateau": plateau_or_undetermined(reference),
-        "nonfinite_iteration": [parts[i]["nonfinite_iteration"][j] for i, j in order],
-        "compile_s": sum(part["compile_s"] for part in parts),
-        "train_s": sum(part["train_s"] for part in parts),
-        **parts_made_text(parts, ("train_s", "compile_s")),
     }
 
 
@@ -370,14 +292,6 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{len(protocol.SELECTION_SEEDS)}, the selection seeds from 100)")
     parser.add_argument("--seed-offset", type=cli.seed_int, default=protocol.SELECTION_SEEDS[0],
                         help="first seed (default: %(default)s; the tables use 0-9)")
-    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
-                        help="train only these of the seeds, as a part of each pair kept in "
-                        "<out>/parts/ and joined into the pair's cell once parts cover all its "
-                        "seeds (for a machine that cannot train a whole program at one sitting)")
-    parser.add_argument("--part-values", type=cli.non_negative_float, nargs="+", default=None,
-                        help="train only these of the values (0, the reference, among them or "
-                        "not) on the --part-seeds (default: all of them), as a part joined "
-                        "like those of --part-seeds")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()})")
@@ -391,6 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
     add_no_train_option(parser)
+    distributed.add_options(parser)
     return parser
 
 
@@ -412,54 +327,12 @@ def settings_from(args: argparse.Namespace) -> Settings:
                                     ("the tables'", "the budgets'"))
     if problem:  # --quick too, as the tables and the budgets refuse
         raise cli.UsageError(problem)
-    fields["part_seeds"] = part_seeds_from(args.part_seeds, fields["seeds"], "search")
-    fields["part_values"] = part_values_from(args.part_values, (0.0, *values))
     return Settings(**fields)
-
-
-def part_values_from(requested: list[float] | None, grid_values: tuple[float, ...]
-                     ) -> tuple[float, ...]:
-    """``--part-values`` checked against the search's values (raising
-    :class:`ccrjax.cli.UsageError`): sorted, or ``()`` when none or all are named."""
-    part = tuple(sorted({float(value) for value in requested or ()}))
-    outside = [value for value in part if value not in grid_values]
-    if outside:
-        raise cli.UsageError(f"--part-values {' '.join(f'{v:g}' for v in outside)} not among "
-                             f"the search's values {' '.join(f'{v:g}' for v in grid_values)}")
-    return () if part == tuple(sorted(grid_values)) else part
-
-
-def train_parts(settings: Settings, out: Path, todo: list[tuple[str, str]],
-                cells: dict[tuple[str, str], dict], partial: Partial, ledger: Any) -> None:
-    """Trains the part on ``settings.part_seeds`` (all seeds if none) and
-    ``settings.part_values`` (all values if none) of every pair in ``todo`` that lacks it,
-    and joins each pair whose parts then hold all its runs into its cell (into ``cells``)."""
-    seeds, values = settings.part_seeds or settings.seeds, settings.part_values
-    runs = len(values or settings.grid_values) * len(seeds)
-    what = f"seeds {list(seeds)}" + (f", values {list(values)}" if values else "")
-    train = [(s, a) for s, a in todo if not part_made(settings, out, f"{s}-{a}", seeds, values)]
-    log(f"{len(todo) - len(train)} of {len(todo)} parts on {what} already made; "
-        f"{len(train)} to train ({runs} runs each)")
-    progress = ProgramProgress([(part_path(out, f"{s}-{a}", seeds, values).stem, a,
-                          runs * settings.budget(a)) for s, a in train])
-    trained = dataclasses.replace(part_settings(settings, seeds), part_values=())
-    train_part_programs(train, out, seeds, values, progress, partial, ledger,
-                        lambda s, a, name: train_cell(trained, s, a, partial, name, values))
-
-    def lacking(parts: list[dict[str, Any]]) -> str:
-        made = "; ".join(
-            f"seeds {part['settings']['seeds']}"
-            + (f" values {list(part_values_of(part))}" if part_values_of(part) else "")
-            for part in parts)
-        return (f"parts made ({made}) of seeds {list(settings.seeds)} x values "
-                f"{settings.grid_values}")
-
-    join_pair_parts(settings, out, todo, cells, lambda parts: join_parts(settings, parts),
-                    lacking)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    distributed.initialize(PROG, args)
     out = args.out or Path("runs/search") / args.variant
 
     def settings_of() -> Settings:
@@ -470,11 +343,7 @@ def main(argv: list[str] | None = None) -> int:
                 settings.config(scenario, algo)
         if args.no_train:
             refuse_untrained({f"{s}-{a}": cell_path(out, s, a) for s in settings.scenarios
-                              for a in settings.algos}, settings_record(settings), out,
-                             "--part-seeds, --part-values" if settings.in_parts else "")
-        elif settings.in_parts and (overlap := overlapping_part(
-                settings, out, tuple(settings.grid_values), settings.part_values)):
-            raise cli.UsageError(overlap)
+                              for a in settings.algos}, settings_record(settings), out)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
@@ -483,19 +352,10 @@ def main(argv: list[str] | None = None) -> int:
         settings, out, runs, f"{len(settings.grid_values)} values x {len(settings.seeds)} "
         f"seeds = {runs} runs each")
     partial = Partial(out, args.checkpoint_minutes)
-    if settings.in_parts:
-        train_parts(settings, out, todo, cells, partial, ledger)
-    else:
-        cells.update(train_pairs(todo, out, partial, ledger, progress,
-                                 lambda s, a: train_cell(settings, s, a, partial)))
+    cells.update(train_pairs(todo, out, partial, ledger, progress,
+                             lambda s, a: train_cell(settings, s, a, partial)))
     ledger.record(len(todo), finished=True)
-    if settings.in_parts:  # the summary is the whole grid's, made without parts
-        missing = [f"{s}-{a}" for s in settings.scenarios for a in settings.algos
-                   if (s, a) not in cells]
-        log((f"parts of {', '.join(missing)} wait in {out / PARTS} for the other runs; "
-             if missing else "") + "the summary is written by the same command without "
-            "--part-seeds and --part-values (it trains nothing for the pairs whose cells "
-            "exist), naming the scenarios and learners to summarise")
+    if not distributed.is_primary():  # process 0 writes the summary
         return 0
     ordered = {pair: cells[pair] for pair in
                [(s, a) for s in settings.scenarios for a in settings.algos]}

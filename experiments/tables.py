@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from ccrjax import cli
+from ccrjax.run import distributed
 from ccrjax.run.folder import write_atomic
 from ccrjax.training import ALGOS
 from experiments import protocol
@@ -59,7 +60,6 @@ from experiments.ledger import (
     add_out_options,
     check_quick_out,
     open_experiment,
-    part_seeds_from,
     read_json,
     refuse_untrained,
     settings_record,
@@ -119,12 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "tables", default_text="runs/tables")
-    parser.add_argument("--part-seeds", type=cli.seed_int, nargs="+", default=None,
-                        help="train only these of the seeds, as a part of each program kept in "
-                        "<out>/parts/ and joined into its cells once parts cover all their "
-                        "seeds (for a machine that cannot train a whole program at one sitting)")
     add_checkpoint_option(parser)
     add_no_train_option(parser)
+    distributed.add_options(parser)
     return parser
 
 
@@ -169,6 +166,7 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    distributed.initialize(PROG, args)
     out = args.out or Path("runs/tables")
     sources: dict[str, str] = {}
 
@@ -185,7 +183,6 @@ def main(argv: list[str] | None = None) -> int:
                                         ("the selection", "the budgets'"))
         if problem:
             raise cli.UsageError(problem)
-        fields["part_seeds"] = part_seeds_from(args.part_seeds, fields["seeds"], "tables")
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
 
@@ -212,13 +209,14 @@ def main(argv: list[str] | None = None) -> int:
             cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings)
                      for variant in job.variants]
             refuse_untrained({cell_stem(*cell): variant_cell_path(out, *cell) for cell in cells},
-                             settings_record(settings), out,
-                             "--part-seeds" if settings.part_seeds else "")
+                             settings_record(settings), out)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
     trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
     ledger.record(trained, finished=True)
+    if not distributed.is_primary():  # process 0 writes the tables
+        return 0
     cells, missing = grid_cells(out, settings)
     if missing:
         total = len(grid_jobs())

@@ -17,11 +17,11 @@ import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
 
+from ccrjax.run import distributed
 from ccrjax.run.folder import (
     POINT_METRICS,
     git_commit,
@@ -40,17 +40,8 @@ from experiments.ledger import (
     ProgramProgress,
     cell_is_current,
     device_name,
-    discard_parts,
-    joined_by_seed,
     log,
-    made_parts,
-    part_made,
-    part_path,
-    part_settings,
-    parts_cover,
-    parts_made_text,
     read_json,
-    seed_order,
     settings_record,
     training_record,
 )
@@ -203,116 +194,46 @@ def grid_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
 
 
 def cell_stem(scenario: str, algo: str, variant: str) -> str:
-    """A cell's name: its file in ``cells/``, and its parts' in ``parts/``."""
+    """A cell's name: its file in ``cells/``."""
     return f"{scenario}-{algo}-{variant}"
-
-
-def job_part_made(out: Path, job: Job, settings: Settings, seeds: tuple[int, ...]) -> bool:
-    """Whether every variant of ``job`` has its part on ``seeds`` in ``out``."""
-    return all(part_made(settings, out, cell_stem(job.scenario, job.algo, variant), seeds)
-               for variant in job.variants)
-
-
-def join_cell_parts(settings: Settings, parts: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """A variant's cell joined from ``parts`` (its cells on disjoint seeds), or ``None``
-    while they do not cover ``settings.seeds`` exactly once: every per-seed record in the
-    order of ``settings.seeds``, the plateau check made again over all seeds, the episode
-    of the first seed (as one program keeps it), the programs' times added up, and which
-    seeds were made where, when and at which commit."""
-    if not parts_cover(settings, parts):
-        return None
-    order = seed_order(parts, settings.seeds)
-
-    def joined(records: list[list[Any]]) -> list[Any]:
-        return joined_by_seed(records, order)
-
-    first = parts[0]
-    history = {m: joined([part["history"][m] for part in parts]) for m in first["history"]}
-    times = ("train_seconds_of_program", "compile_seconds_of_program")
-    cell = {
-        **{k: first[k] for k in ("scenario", "algo", "variant", "budget", "training")},
-        "settings": settings_record(dataclasses.replace(settings, part_seeds=())),
-        "seeds": list(settings.seeds),
-        **{group: {k: joined([part[group][k] for part in parts]) for k in first[group]}
-           for group in ("params", "final")},
-        "history": history,
-        "return_plateau": plateau_or_undetermined(np.asarray(history["return"])),
-        "nonfinite_iteration": joined([part["nonfinite_iteration"] for part in parts]),
-        **{k: sum(part[k] for part in parts) for k in times},
-        **parts_made_text(parts, times),
-    }
-    if "arrival" in first:
-        cell["arrival"] = {k: joined([part["arrival"][k] for part in parts])
-                           for k in first["arrival"]}
-    cell["episode"] = parts[order[0][0]]["episode"]
-    return cell
-
-
-def join_parts_of(jobs: list[Job], settings: Settings, out: Path) -> None:
-    """Joins every variant of ``jobs`` whose parts in ``out`` cover its seeds into its cell,
-    deleting the parts; says what each still lacks."""
-    for job in jobs:
-        for variant in job.variants:
-            stem = cell_stem(job.scenario, job.algo, variant)
-            parts = made_parts(settings, out, stem)
-            cell = join_cell_parts(settings, parts) if parts else None
-            if cell is None:
-                made = sorted(seed for part in parts for seed in part["seeds"])
-                log(f"{stem}: parts made on seeds {made} of {list(settings.seeds)}")
-                continue
-            write_atomic(variant_cell_path(out, job.scenario, job.algo, variant),
-                         json.dumps(cell) + "\n")
-            discard_parts(out, stem, parts)
-            log(f"{stem}: joined from {len(parts)} parts into its cell")
 
 
 def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) -> int:
     """Trains every missing program of ``settings`` (compiling the next program while one
-    trains), or with ``settings.part_seeds`` its part on those seeds, then joins the parts
-    that cover their cells' seeds; returns the number of programs trained."""
+    trains); returns the number of programs trained. With several processes
+    (:mod:`ccrjax.run.distributed`) each trains its share of every program's runs and
+    process 0 writes the cells."""
     jobs = jobs_of(settings)
-    todo = [job for job in jobs if job_cells(out, job, settings) is None]
-    seeds = settings.part_seeds or settings.seeds
-    trained = part_settings(settings, seeds) if settings.part_seeds else settings
+    # Several processes train the same programs in the same order: process 0's list.
+    todo = [job for job in jobs if distributed.agree(job_cells(out, job, settings) is None)]
+    seeds = settings.seeds
     budgets = f"budgets { {a: settings.budget(a) for a in ALGOS} }, on {device_name()}"
-    missing = todo
-    if settings.part_seeds:
-        todo = [job for job in missing if not job_part_made(out, job, settings, seeds)]
-        log(f"{len(jobs) - len(missing)} of {len(jobs)} programs already done; of the other "
-            f"{len(missing)}, {len(missing) - len(todo)} made on seeds {list(seeds)}; "
-            f"{len(todo)} parts to train ({len(seeds)} seeds per cell, {budgets})")
-    else:
-        log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
-            f"train ({len(seeds)} seeds per cell, {budgets})")
+    log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
+        f"train ({len(seeds)} seeds per cell, {budgets})")
     progress = ProgramProgress([(job.name, job.algo,
                           len(job.variants) * len(seeds) * settings.budget(job.algo))
                          for job in todo])
-    (out / "cells").mkdir(parents=True, exist_ok=True)
+    if distributed.is_primary():
+        (out / "cells").mkdir(parents=True, exist_ok=True)
     # Compilation runs ahead in worker threads (XLA's compiler releases the GIL) while the
     # main thread trains; the quick mode's programs run for moments, so there it compiles
     # on both cores at XLA's lowest optimisation level.
     workers = 2 if settings.quick else 1
     with ThreadPoolExecutor(max_workers=workers) as compiler:
         for job in todo:
-            job.training = build_training(job, trained)
+            job.training = build_training(job, settings)
         compiled = [compiler.submit(job.training.compile, not settings.quick) for job in todo]
         for number, (job, done) in enumerate(zip(todo, compiled, strict=True)):
             done.result()
-            name = (part_path(out, job.name, seeds).stem if settings.part_seeds
-                    else job.name)
-            runs = partial.train(job.training, name)
-            for variant, cell in cells_of(job, runs, trained).items():
-                path = (part_path(out, cell_stem(job.scenario, job.algo, variant), seeds)
-                        if settings.part_seeds else
-                        variant_cell_path(out, job.scenario, job.algo, variant))
-                path.parent.mkdir(exist_ok=True)
-                write_atomic(path, json.dumps(cell) + "\n")
-            partial.discard(name)
+            runs = partial.train(job.training, job.name)
+            if distributed.is_primary():
+                for variant, cell in cells_of(job, runs, settings).items():
+                    write_atomic(variant_cell_path(out, job.scenario, job.algo, variant),
+                                 json.dumps(cell) + "\n")
+            partial.discard(job.name)
             job.training = None  # free the compiled program
             ledger.record(number + 1)
             log(progress.finished(number, runs.run_s + runs.compile_s))
-    if settings.part_seeds:
-        join_parts_of(missing, settings, out)
     return len(todo)
 
 

@@ -41,11 +41,6 @@ def budgets():
     return load("budgets")
 
 
-@pytest.fixture(scope="module")
-def merge():
-    return load("merge")
-
-
 def refused(module, argv, capsys, *fragments):
     with pytest.raises(SystemExit) as exit_:
         module.main(argv)
@@ -86,14 +81,12 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     (["--candidate-every", "0"], ("--candidate-every",)),
     (["--candidate-every", "4000000"], ("above the budget 3,000,000 of iddpg",)),
     (["--seed-offset", "0"], ("is --tables-seeds",)),
-    (["--part-seeds", "5"], ("--part-seeds 5 not among the budget check's seeds 200-202",)),
     (["--tables-seeds", "--seeds", "4"], ("--tables-seeds fixes the seeds", "--seeds")),
     (["--tables-seeds", "--seed-offset", "0", "--candidate-every", "1000"],
      ("leave out --seed-offset and --candidate-every",)),
     (["--tables-seeds", "--quick"], ("--quick has seeds of its own",)),
     (["--tables-seeds", "--steps", "2000000"],
      ("candidates 3,000,000 is above the budget 2,000,000",)),
-    (["--tables-seeds", "--part-seeds", "10"], ("--part-seeds 10 not among", "seeds 0-9")),
 ])
 def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -160,10 +153,10 @@ def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budge
 
 def test_the_tables_seeds_check_runs_the_protocols_longer_budget(budgets):
     """--tables-seeds: the tables' seeds, 6M steps, the candidates 3M, 4.5M and 6M, as the
-    amendment of 2026-11-26 says; and parts of it named by seed."""
-    args = budgets.build_parser().parse_args(["--tables-seeds", "--part-seeds", "3", "1"])
+    amendment of 2026-11-26 says."""
+    args = budgets.build_parser().parse_args(["--tables-seeds"])
     settings = budgets.settings_from(args)
-    assert settings.seeds == tuple(range(10)) and settings.part_seeds == (1, 3)
+    assert settings.seeds == tuple(range(10))
     assert settings.budget("maac") == 6_000_000
     assert settings.candidates("iddpg") == [3_000_000, 4_500_000, 6_000_000]
     assert budgets.settings_from(budgets.build_parser().parse_args([])).seeds == (200, 201, 202)
@@ -245,91 +238,6 @@ def results_folder(path: Path, settings: dict, records: list[dict], cells: dict[
         cell = {"algo": "iddpg", "settings": settings, "budget": 3_000_000, "label": label}
         (path / "cells" / name).write_text(json.dumps(cell))
     return path
-
-
-def record(command: str, wall_time_s: float = 1.0) -> dict:
-    return {"command": command, "commit": "c", "device": "cpu", "date": "d",
-            "wall_time_s": wall_time_s}
-
-
-def test_merge_gathers_cells_and_records_of_folders_made_apart(merge, tmp_path, capsys):
-    settings = {"seeds": [200, 201], "steps": None, "scenarios": ["turbulence"], "algos": ["iddpg"]}
-    wider = {**settings, "scenarios": ["turbulence", "strong_wind"], "steps": 3_000_000}
-    into = results_folder(tmp_path / "into", settings, [record("a")],
-                          {"turbulence-iddpg.json": "A"})
-    one = results_folder(tmp_path / "one", wider, [record("b", 5.0)],
-                         {"strong_wind-iddpg.json": "B"})
-    copied = "turbulence-iddpg.json"  # a cell the folder started from, read back by a
-    # wider invocation elsewhere: other timings and programs trained, the same results
-    cell = json.loads((into / "cells" / copied).read_text())
-    (one / "cells" / copied).write_text(json.dumps({
-        **cell, "train_s": 9.0, "date": "later", "device": "gpu",
-        "settings": {**cell["settings"], "scenarios": ["turbulence", "strong_wind"]}}))
-    two = results_folder(tmp_path / "two", settings, [record("a"), record("b", 2.0),
-                                                      record("c")],
-                         {"nominal-iddpg.json": "C"})
-    old = tmp_path / "two" / "cells" / "hazard-iddpg.json"  # made for a budget of 2M
-    old.write_text(json.dumps({"algo": "iddpg", "settings": settings, "env_steps": [0, 2e6]}))
-    (into / "cells" / "nominal-iddpg.json").write_text(old.read_text())  # replaced by two's
-    assert merge.main([str(one), str(two), "--into", str(into)]) == 0
-    assert sorted(p.name for p in (into / "cells").iterdir()) == [
-        "nominal-iddpg.json", "strong_wind-iddpg.json", "turbulence-iddpg.json"]
-    ledger = json.loads((into / "invocations.json").read_text())
-    # One record per invocation, the later copy of "b" (it ran on after the first copy).
-    assert json.loads((into / "cells" / "nominal-iddpg.json").read_text())["label"] == "C"
-    assert [(r["command"], r["wall_time_s"]) for r in ledger["invocations"]] == [
-        ("a", 1.0), ("b", 5.0), ("c", 1.0)]
-    assert ledger["settings"] == {"seeds": [200, 201], "steps": None}  # less each one's scope
-    out = capsys.readouterr().out
-    assert "2 cell(s) copied" in out and "2 invocation record(s) added" in out
-    assert "left out 1 cell(s) made with other settings" in out and "hazard-iddpg" in out
-    assert merge.main([str(one), "--into", str(into)]) == 0  # again: nothing new
-    assert "0 cell(s) copied" in capsys.readouterr().out
-    unnamed = json.loads((into / "invocations.json").read_text())
-    del unnamed["experiment"]  # written before experiments were named in their records
-    (into / "invocations.json").write_text(json.dumps(unnamed))
-    assert merge.main([str(two), "--into", str(into)]) == 0
-    named = json.loads((into / "invocations.json").read_text())
-    assert named["experiment"] == "python experiments/budgets.py"
-
-
-def test_merge_refuses_what_does_not_fit_and_writes_nothing(merge, tmp_path, capsys,
-                                                             monkeypatch):
-    from experiments import ledger
-
-    settings = {"seeds": [200, 201], "steps": None}
-    into = results_folder(tmp_path / "into", settings, [], {"turbulence-iddpg.json": "A"})
-    before = (into / "invocations.json").read_text()
-    other = results_folder(tmp_path / "other", {**settings, "steps": 5}, [], {"x.json": "X"})
-    refused(merge, [str(other), "--into", str(into)], capsys, "other settings", "budget 5 / ")
-    clash = results_folder(tmp_path / "clash", settings, [record("b")],
-                           {"turbulence-iddpg.json": "B", "y.json": "Y"})
-    refused(merge, [str(clash), "--into", str(into)], capsys, "turbulence-iddpg.json differs")
-    search = results_folder(tmp_path / "search", settings, [], {},
-                            experiment="python experiments/search.py")
-    refused(merge, [str(search), "--into", str(into)], capsys, "results of python "
-            "experiments/search.py, not of python experiments/budgets.py")
-    (tmp_path / "empty").mkdir()
-    refused(merge, [str(tmp_path / "empty"), "--into", str(into)], capsys, "no invocations.json")
-    broken = results_folder(tmp_path / "broken", settings, [], {})
-    for text in ("{not json", "[]", '{"settings": {}, "invocations": null}',
-                 '{"settings": {}, "invocations": ["x"]}'):
-        (broken / "invocations.json").write_text(text)
-        refused(merge, [str(broken), "--into", str(into)], capsys, "is not a record")
-    refused(merge, [str(into), "--into", str(into)], capsys, "--into must not be")
-    # Settings the current code refuses (an interval it would round), found when a cell's
-    # training record is checked: one line, and no --into made.
-    rounded = {**settings, "eval_every": 12_345, "eval_episodes": 4}
-    odd = results_folder(tmp_path / "odd", rounded, [], {})
-    (odd / "cells" / "turbulence-iddpg.json").write_text(json.dumps(
-        {"algo": "iddpg", "scenario": "turbulence", "settings": rounded, "budget": 3_000_000,
-         "training": {}}))
-    refused(merge, [str(odd), "--into", str(tmp_path / "new")], capsys, "--eval-every 12,345")
-    assert not (tmp_path / "new").exists()
-    assert sorted(p.name for p in (into / "cells").iterdir()) == ["turbulence-iddpg.json"]
-    assert (into / "invocations.json").read_text() == before
-    monkeypatch.setattr(ledger, "RESULTS", tmp_path)
-    refused(merge, [str(clash), "--into", str(into)], capsys, "--into", "--force")
 
 
 def test_an_experiment_refuses_a_folder_of_another_experiment(search, budgets, tmp_path,
@@ -434,19 +342,6 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     assert tables.selected("ccr", None, True) == (30.0, "the quick mode's fixed value")
     refused(tables, ["--quick", "--searches", str(tmp_path / "none"), "--out",
                      str(tmp_path / "never")], capsys, "no ccr search result")
-
-
-def test_merge_keeps_two_invocations_started_in_the_same_minute(merge, tmp_path):
-    """Records with ids are one invocation each (a crash and its relaunch share command,
-    commit, device and minute); copies of one record (same id) stay one."""
-    settings = {"seeds": [200, 201], "steps": None}
-    first, relaunch = ({**record("a"), "id": name} for name in ("x1", "x2"))
-    source = results_folder(tmp_path / "source", settings, [first, relaunch], {})
-    into = results_folder(tmp_path / "into", settings, [{**first, "wall_time_s": 0.5}], {})
-    assert merge.main([str(source), "--into", str(into)]) == 0
-    ledger = json.loads((into / "invocations.json").read_text())
-    assert sorted((r["id"], r["wall_time_s"]) for r in ledger["invocations"]) == [
-        ("x1", 1.0), ("x2", 1.0)]
 
 
 def test_the_lambda_search_also_selects_against_the_exact_plain_runs(search):
@@ -686,7 +581,7 @@ def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, b
         assert not ledger.cell_is_current({**cell, "training": original}, record)
 
 
-@pytest.mark.parametrize("name", ["budgets", "search", "tables", "merge", "calibrate",
+@pytest.mark.parametrize("name", ["budgets", "search", "tables", "results_report", "calibrate",
                                   "ccr_signal", "ccrjax.train", "ccrjax.sweep",
                                   "ccrjax.evaluate", "ccrjax.demo"])
 def test_help_is_plain_text_with_every_option_explained(name):
@@ -766,17 +661,16 @@ def test_a_run_whose_updates_go_non_finite_is_kept_named_and_reported(tmp_path, 
 
 
 def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_path):
-    """Two invocations working in one folder at once (parts of a grid side by side): every
+    """Two invocations working in one folder at once (lanes of a grid side by side): every
     update of one keeps the other's record, each in the place it began, and its own scope
-    (the file's settings are the cells' alone, whoever wrote last); and parts that the
-    other invocation has just joined and deleted are no error to delete again."""
+    (the file's settings are the cells' alone, whoever wrote last)."""
     from experiments import ledger
 
     def settings(*extra: str):
         return search.settings_from(search.build_parser().parse_args(
             ["--variant", "pessimistic", "--quick", *extra]))
 
-    first = ledger.Ledger(tmp_path, settings("--part-seeds", "100"), "first", "search")
+    first = ledger.Ledger(tmp_path, settings("--algos", "iddpg"), "first", "search")
     first.record(0)
     second = ledger.Ledger(tmp_path, settings("--algos", "maac"), "second", "search")
     second.record(0)
@@ -786,89 +680,10 @@ def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_
     records = written["invocations"]
     assert [(r["command"], r["finished"]) for r in records] == [("first", True),
                                                                  ("second", False)]
-    assert [(r["scope"]["part_seeds"], r["scope"]["algos"]) for r in records] == [
-        ([100], ["iddpg", "maddpg", "maac"]), ([], ["maac"])]
+    assert [r["scope"]["algos"] for r in records] == [["iddpg"], ["maac"]]
     assert written["settings"] == ledger.folder_settings(ledger.settings_record(settings()))
     assert not set(ledger.NOT_IN_CELLS) & set(written["settings"])
     assert [r["command"] for r in first.invocations] == ["first", "second"]
-    (tmp_path / "parts").mkdir()
-    (tmp_path / "parts" / "other-seeds-3.json").write_text("{}")
-    ledger.discard_parts(tmp_path, "x", [{"settings": {"seeds": [1]}}])  # already gone
-    assert (tmp_path / "parts" / "other-seeds-3.json").exists()
-    (tmp_path / "parts" / "other-seeds-3.json").unlink()
-    ledger.discard_parts(tmp_path, "x", [{"settings": {"seeds": [2]}}])
-    assert not (tmp_path / "parts").exists()
-
-
-@pytest.mark.slow
-def test_a_search_made_in_seed_parts_joins_into_the_cell_one_program_makes(search, tmp_path,
-                                                                          capsys):
-    """``--part-seeds`` (each part trains every value on some seeds) and ``--part-values``
-    (some of the values on them): the summary waits until the parts hold every value on
-    every seed, then they are joined into the cell that one program of all runs makes (the
-    same runs in the same order, rows and plateau check over all seeds) and deleted. A seed
-    or value outside the search, and a part holding runs another part holds, are refused in
-    one line."""
-    common = ["--variant", "pessimistic", "--quick", "--scenarios", "turbulence",
-              "--algos", "iddpg", "--values", "1"]
-    whole, parts = tmp_path / "whole", tmp_path / "parts"
-    assert search.main([*common, "--out", str(whole)]) == 0
-    capsys.readouterr()
-    refused(search, [*common, "--no-train", "--out", str(parts)], capsys,
-            "--no-train: 1 of the 1 cells in", "turbulence-iddpg: none made")
-    refused(search, [*common, "--no-train", "--values", "2", "--out", str(whole)], capsys,
-            "turbulence-iddpg: made with other values")
-    refused(search, [*common, "--no-train", "--part-seeds", "100", "--out", str(whole)],
-            capsys, "--no-train trains nothing, so it cannot make parts")
-    assert search.main([*common, "--no-train", "--out", str(whole)]) == 0  # its summary
-    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
-    refused(search, [*common, "--part-seeds", "7", "--out", str(parts)], capsys,
-            "--part-seeds 7 not among the search's seeds 100-101")
-    refused(search, [*common, "--part-values", "2", "--out", str(parts)], capsys,
-            "--part-values 2 not among the search's values 0 1")
-    assert search.main([*common, "--part-seeds", "101", "--out", str(parts)]) == 0
-    assert not (parts / "search.json").exists()
-    assert not (parts / "cells" / "turbulence-iddpg.json").exists()
-    assert [p.name for p in (parts / "parts").iterdir()] == ["turbulence-iddpg-seeds-101.json"]
-    assert "parts of turbulence-iddpg wait in" in capsys.readouterr().err
-    assert search.main([*common, "--part-seeds", "100", "--part-values", "1",
-                        "--out", str(parts)]) == 0
-    assert sorted(p.name for p in (parts / "parts").iterdir()) == [
-        "turbulence-iddpg-seeds-100-values-1.json", "turbulence-iddpg-seeds-101.json"]
-    capsys.readouterr()
-    refused(search, [*common, "--part-seeds", "100", "--part-values", "0", "1",
-                     "--out", str(parts)], capsys,
-            "--part-seeds/--part-values: turbulence-iddpg already has value 1 on seed 100 in "
-            "parts/turbulence-iddpg-seeds-100-values-1.json; ask for runs that no part holds")
-    assert search.main([*common, "--part-seeds", "100", "--part-values", "0",
-                        "--out", str(parts)]) == 0
-    assert not (parts / "parts").exists() and not (parts / "search.json").exists()
-    assert "joined from 3 parts" in capsys.readouterr().err
-    assert search.main([*common, "--out", str(parts)]) == 0  # the summary, training nothing
-    assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
-    assert (parts / "search.json").exists()
-
-    one = json.loads((whole / "cells" / "turbulence-iddpg.json").read_text())
-    joined = json.loads((parts / "cells" / "turbulence-iddpg.json").read_text())
-    assert [(p["seeds"], p.get("values")) for p in joined["parts"]] == [
-        ([100], [0.0]), ([100], [1.0]), ([101], None)]
-    for key in ("settings", "grid_seeds", "grid_values", "env_steps", "training", "budget",
-                "nonfinite_iteration", "plain_return_plateau"):
-        assert joined[key] == one[key], key
-    for metric, curves in one["history"].items():
-        np.testing.assert_allclose(joined["history"][metric], curves, rtol=1e-6, atol=1e-6)
-    for row_one, row_joined in zip(one["rows"], joined["rows"], strict=True):
-        assert row_joined.keys() == row_one.keys() and row_joined["seeds"] == [100, 101]
-        for metric in row_one:
-            if isinstance(row_one[metric], dict):
-                for stat in ("per_seed", "mean", "ci_low", "ci_high"):
-                    np.testing.assert_allclose(row_joined[metric][stat], row_one[metric][stat],
-                                               rtol=1e-5, atol=1e-6)
-    from experiments import ledger
-
-    record = ledger.settings_record(search.settings_from(
-        search.build_parser().parse_args(common)))
-    assert ledger.cell_is_current(joined, record)
 
 
 def test_a_stopped_invocation_shows_only_the_time_it_recorded(search):
@@ -888,17 +703,3 @@ def test_a_stopped_invocation_shows_only_the_time_it_recorded(search):
     assert "0m00s" not in none
 
 
-def test_a_joined_cell_is_dated_by_the_last_part_made_not_the_last_seed(search):
-    """Parts join in seed order, but a cell's date and commits follow the order the parts
-    were made in: a cell finished by a part on its first seeds is dated by that part."""
-    from experiments import ledger
-
-    def part(seeds: list[int], commit: str, date: str) -> dict:
-        return {"settings": {"seeds": seeds}, "device": "cpu", "commit": commit,
-                "date": date, "train_s": 1.0}
-    parts = [part([100], "b", "2026-11-28 08:02 UTC"), part([101], "a", "2026-11-27 22:34 UTC"),
-             part([102], "c", "2026-11-28 05:08 UTC")]
-    made = ledger.parts_made_text(parts, ("train_s",))
-    assert made["date"] == "2026-11-28 08:02 UTC"
-    assert made["commit"] == "a; c; b" and made["device"] == "cpu"
-    assert [p["seeds"] for p in made["parts"]] == [[100], [101], [102]]

@@ -11,7 +11,6 @@ import importlib.util
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 # The whole grid's pipeline (18 programs compiled): minutes, so `make test-slow`.
@@ -132,8 +131,7 @@ def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run,
                   "run without --no-train to train them")),
             (["--lam", "2"], ("--no-train: 27 of the 27 cells",
                               "hidden_obstacle-iddpg-plain: made with other lam;",
-                              "; and 23 more")),
-            (["--part-seeds", "0"], ("--no-train trains nothing, so it cannot make parts",))):
+                              "; and 23 more"))):
         with pytest.raises(SystemExit) as exit_:
             tables.main(["--quick", "--no-train", *argv, "--out", str(out)])
         assert exit_.value.code == 2
@@ -255,28 +253,6 @@ def test_the_budgets_pipeline_at_a_tiny_size(tmp_path, capsys):
     assert_cells_record_their_training(out)
     for name in ("budgets.md", "curves_iddpg.png", "invocations.json"):
         assert (out / name).stat().st_size > 0
-    # The same cell made in two parts by seed joins into the one program's runs.
-    parted = [*argv[:-1], str(tmp_path / "parted")]
-    assert budgets.main([*parted, "--part-seeds", "201"]) == 0
-    assert [p.name for p in (tmp_path / "parted" / "parts").iterdir()] == [
-        "turbulence-iddpg-seeds-201.json"]
-    assert "turbulence-iddpg: parts made on seeds [201] of [200, 201, 202]" in (
-        capsys.readouterr().err)
-    waiting = (tmp_path / "parted" / "budgets.md").read_text()
-    assert "No cell is made yet" in waiting and "steps per seed: 4,000 (iddpg)" in waiting
-    with pytest.raises(SystemExit) as refusal:
-        budgets.main([*parted, "--part-seeds", "200", "201"])
-    assert refusal.value.code == 2
-    assert "already has seed 201 in parts/turbulence-iddpg-seeds-201.json" in (
-        capsys.readouterr().err)
-    assert budgets.main([*parted, "--part-seeds", "200", "202"]) == 0
-    assert "joined from 2 parts into its cell" in capsys.readouterr().err
-    assert not (tmp_path / "parted" / "parts").exists()
-    joined = json.loads((tmp_path / "parted" / "cells" / "turbulence-iddpg.json").read_text())
-    assert joined["seeds"] == cell["seeds"] and joined["env_steps"] == cell["env_steps"]
-    assert [p["seeds"] for p in joined["parts"]] == [[200, 202], [201]]
-    for metric, curves in cell["curves"].items():
-        np.testing.assert_allclose(joined["curves"][metric], curves, rtol=1e-5, atol=1e-6)
     capsys.readouterr()
     assert budgets.main(argv) == 0
     assert "1 of 1 programs already done; 0 to train" in capsys.readouterr().err
@@ -319,37 +295,3 @@ def test_a_narrower_invocation_trains_its_programs_and_waits_for_the_rest(tables
     assert not (out / "tables.md").exists()
 
 
-def test_cells_made_in_seed_parts_join_into_the_cells_one_program_makes(tables, quick_run,
-                                                                       tmp_path, capsys):
-    """``--part-seeds``: a program made seed by seed; each variant's parts are joined into
-    the cell one program of all seeds makes (per-seed records in seed order, the plateau
-    check and the first seed's episode) once they cover its seeds, and deleted."""
-    from experiments import ledger
-
-    out = tmp_path / "parts"
-    pair = ["--quick", "--scenarios", "hidden_obstacle", "--algos", "iddpg", "--out", str(out)]
-    assert tables.main([*pair, "--part-seeds", "1"]) == 0
-    assert sorted(p.name for p in (out / "parts").iterdir()) == [
-        f"hidden_obstacle-iddpg-{v}-seeds-1.json" for v in ("ccr", "pessimistic", "plain")]
-    assert not (out / "cells" / "hidden_obstacle-iddpg-plain.json").exists()
-    assert tables.main([*pair, "--part-seeds", "1"]) == 0  # made: nothing trains again
-    assert "0 parts to train" in capsys.readouterr().err
-    assert tables.main([*pair, "--part-seeds", "0"]) == 0
-    assert not (out / "parts").exists()
-    for variant in ("plain", "pessimistic", "ccr"):
-        name = f"hidden_obstacle-iddpg-{variant}.json"
-        one = json.loads((quick_run / "cells" / name).read_text())
-        joined = json.loads((out / "cells" / name).read_text())
-        assert [part["seeds"] for part in joined["parts"]] == [[0], [1]]
-        assert ledger.cell_is_current(joined, one["settings"])
-        for key in ("seeds", "params", "training", "budget", "return_plateau",
-                    "nonfinite_iteration"):
-            assert joined[key] == one[key], (variant, key)
-        # To float32 rounding: a program of another size may order its arithmetic otherwise.
-        for group in ("final", "history", "arrival", "episode"):
-            for key, values in one[group].items():
-                if values is None or group == "episode" and key != "position":
-                    assert joined[group][key] == values, (variant, group, key)
-                else:
-                    np.testing.assert_allclose(joined[group][key], values, rtol=1e-5,
-                                               atol=1e-5, err_msg=f"{variant} {group} {key}")

@@ -14,6 +14,10 @@ seeds, run parameters, recorded episodes, device count (the state is padded to i
 code commit. Another one is set aside and the grid starts over, saying why. The caller
 deletes the folder once the grid's results are safely written (:func:`discard`).
 
+With several processes (:mod:`ccrjax.run.distributed`) every process writes its share of
+each checkpoint into the same folder and restores its share from it; process 0 decides
+when to save, and moves or deletes folders.
+
 The saves are synchronous (the next chunk reuses the state's memory). The state is about
 0.6 GB per run at the protocol's replay size, so a 21-run grid writes about 13 GB per
 checkpoint: 16-44 s each on this project's 2-core CPU (the lambda search's strong-wind IDDPG
@@ -29,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ccrjax.run import distributed
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
 from ccrjax.run.folder import fingerprint, git_commit
 from ccrjax.training import config_to_dict
@@ -81,7 +86,9 @@ def restore(training: GridTraining, checkpoints: Checkpoints,
         aside = checkpoints.directory.with_name(
             f"{checkpoints.directory.name}-set-aside-{int(time.time())}")
         checkpoints.close()
-        shutil.move(str(checkpoints.directory), str(aside))
+        if distributed.is_primary():
+            shutil.move(str(checkpoints.directory), str(aside))
+        distributed.barrier("grid checkpoint set aside")
         log(f"  not resuming from {checkpoints.directory} ({error}); set it aside as "
             f"{aside.name} and starting over")
         return None
@@ -142,7 +149,8 @@ def train_resumably(training: GridTraining, folder: Path | None,
         def after_chunk(progress: GridProgress) -> None:
             nonlocal last_save
             notes(progress)
-            if every_s <= 0 or time.perf_counter() - last_save < every_s:
+            # Every process saves its share, so they decide alike (process 0's clock).
+            if not distributed.agree(every_s > 0 and time.perf_counter() - last_save >= every_s):
                 return
             began = time.perf_counter()
             state = progress.state
@@ -163,8 +171,9 @@ def train_resumably(training: GridTraining, folder: Path | None,
 
 def discard(folder: Path | None) -> None:
     """Deletes a grid's checkpoint folder (once its results are written)."""
-    if folder is not None:
+    if folder is not None and distributed.is_primary():
         shutil.rmtree(folder, ignore_errors=True)
+    distributed.barrier("grid checkpoint discarded")
 
 
 __all__ = [

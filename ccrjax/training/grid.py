@@ -14,13 +14,12 @@ all GPUs of a machine, or the devices of several machines:
 * results come back to every host whole (``process_allgather`` when several
   processes take part).
 
-Several processes (machines): a program that calls ``jax.distributed.initialize()`` before
-anything touches the devices and then trains the same grid in every process gets a mesh over
-all their devices; every process builds the same grid inputs (deterministic functions of the
-configuration), feeds its own devices' slices, and receives every result. That path is not
-tested here (one machine), and the experiments' scripts do not take it: they split a grid
-over machines by scenario and learner, each into its own folder, and merge the folders
-(``experiments/merge.py``).
+Several processes (machines): a command that joins them into one JAX job before anything
+touches the devices (:mod:`ccrjax.run.distributed`) and then trains the same grid in every
+process gets a mesh over all their devices; every process builds the same grid inputs
+(deterministic functions of the configuration), feeds its own devices' slices, and receives
+every result. ``tests/test_distributed.py`` checks that two processes give the same results,
+bit for bit, as one process over the same number of devices.
 
 On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` makes two devices of
 one machine's cores; ``tests/test_grid.py`` checks that sharded results equal
