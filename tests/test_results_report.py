@@ -69,6 +69,7 @@ def test_missing_folders_are_left_out(report, tmp_path):
     assert "## The paper's tables at 3M steps" in text
 
 
+@pytest.mark.slow  # three processes that start JAX
 def test_the_command_checks_and_refuses_in_one_line(tmp_path):
     out = copy_results(tmp_path)
     command = [sys.executable, "-m", "experiments.results_report", "--results", str(out)]
