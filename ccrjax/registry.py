@@ -40,6 +40,7 @@ from ccrjax.transforms.ccr import (
     CCRScores,
     DangerFlags,
 )
+from ccrjax.transforms.lagrangian import Lagrangian
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,6 +170,7 @@ for _name, _cls in (("ccr", CCR), ("ccr_scores", CCRScores), ("ccr_reward", CCRR
                     ("ccr_perfect", CCRPerfect)):
     register_transform(_name, _cls, from_record=_ccr_family(_cls))
 register_transform("danger_flags", DangerFlags)
+register_transform("lagrangian", Lagrangian, option_prefix="lagrange")
 register_learner("iddpg", DDPGConfig, DDPG, default_budget=400_000,
                  configure=_centralised(False), option_prefix="ddpg")
 register_learner("maddpg", DDPGConfig, DDPG, default_budget=400_000,

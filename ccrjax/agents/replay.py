@@ -12,7 +12,10 @@ the capacity is a multiple of it, so a block is one contiguous
 ``dynamic_update_slice``. Sampling is uniform over the transitions held.
 
 It also keeps running per-robot sums of the stored rewards, which MAAC uses to
-normalise rewards as the original implementation does.
+normalise rewards as the original implementation does. A buffer whose transitions carry a
+cost channel (:class:`ccrjax.agents.types.Transition`) stores it beside the reward, with
+the sums that give the mean and spread of any weighted sum of the two
+(:meth:`ReplayBuffer.combined_mean_std`): the weights change while the transitions stay.
 """
 
 from __future__ import annotations
@@ -36,6 +39,10 @@ class ReplayBuffer:
     reward_sum: jax.Array  # float32[N]: sums over every reward ever added
     reward_sq_sum: jax.Array  # float32[N]
     reward_count: jax.Array  # float32[]
+    cost: jax.Array | None = None  # [C, T, N], or None without a cost channel
+    cost_sum: jax.Array | None = None  # float32[N]
+    cost_sq_sum: jax.Array | None = None  # float32[N]
+    reward_cost_sum: jax.Array | None = None  # float32[N]: sums of reward x cost
 
     @property
     def capacity_episodes(self) -> int:
@@ -60,6 +67,21 @@ class ReplayBuffer:
         count = jnp.maximum(self.reward_count, 1.0)
         mean = self.reward_sum / count
         var = jnp.maximum(self.reward_sq_sum / count - mean * mean, 0.0)
+        return mean, jnp.sqrt(var)
+
+    def combined_mean_std(self, reward_weight: jax.Array, cost_weight: jax.Array
+                          ) -> tuple[jax.Array, jax.Array]:
+        """Per-robot mean and standard deviation of ``reward_weight r + cost_weight c`` over
+        every transition added so far, from the running sums (exact for any weights):
+        ``var = a^2 var(r) + b^2 var(c) + 2 a b cov(r, c)``."""
+        count = jnp.maximum(self.reward_count, 1.0)
+        mean_r, mean_c = self.reward_sum / count, self.cost_sum / count
+        var_r = self.reward_sq_sum / count - mean_r * mean_r
+        var_c = self.cost_sq_sum / count - mean_c * mean_c
+        cov = self.reward_cost_sum / count - mean_r * mean_c
+        a, b = reward_weight, cost_weight
+        mean = a * mean_r + b * mean_c
+        var = jnp.maximum(a * a * var_r + b * b * var_c + 2.0 * a * b * cov, 0.0)
         return mean, jnp.sqrt(var)
 
 
@@ -87,6 +109,10 @@ def init_replay(example: Transition, capacity_episodes: int, episode_length: int
         reward_sum=jnp.zeros((num_robots,), jnp.float32),
         reward_sq_sum=jnp.zeros((num_robots,), jnp.float32),
         reward_count=jnp.zeros((), jnp.float32),
+        **({} if example.cost is None else {
+            "cost": zeros(example.cost, t),
+            **{name: jnp.zeros((num_robots,), jnp.float32)
+               for name in ("cost_sum", "cost_sq_sum", "reward_cost_sum")}}),
     )
 
 
@@ -109,7 +135,7 @@ def add_episodes(buffer: ReplayBuffer, episodes: Transition) -> ReplayBuffer:
         return jax.lax.dynamic_update_slice_in_dim(store, new, buffer.position, 0)
 
     reward = episodes.reward.reshape(steps * block, -1)
-    return buffer.replace(
+    buffer = buffer.replace(
         obs=write(buffer.obs, obs),
         action=write(buffer.action, episodes.action),
         reward=write(buffer.reward, episodes.reward),
@@ -119,6 +145,17 @@ def add_episodes(buffer: ReplayBuffer, episodes: Transition) -> ReplayBuffer:
         reward_sum=buffer.reward_sum + jnp.sum(reward, axis=0),
         reward_sq_sum=buffer.reward_sq_sum + jnp.sum(reward * reward, axis=0),
         reward_count=buffer.reward_count + steps * block,
+    )
+    if (buffer.cost is None) != (episodes.cost is None):
+        raise ValueError("the episodes and the buffer disagree on a cost channel")
+    if buffer.cost is None:
+        return buffer
+    cost = episodes.cost.reshape(steps * block, -1)
+    return buffer.replace(
+        cost=write(buffer.cost, episodes.cost),
+        cost_sum=buffer.cost_sum + jnp.sum(cost, axis=0),
+        cost_sq_sum=buffer.cost_sq_sum + jnp.sum(cost * cost, axis=0),
+        reward_cost_sum=buffer.reward_cost_sum + jnp.sum(reward * cost, axis=0),
     )
 
 
@@ -141,6 +178,7 @@ def grow(buffer: ReplayBuffer, capacity_episodes: int) -> ReplayBuffer:
 
     return buffer.replace(obs=pad(buffer.obs), action=pad(buffer.action),
                           reward=pad(buffer.reward), done=pad(buffer.done),
+                          cost=None if buffer.cost is None else pad(buffer.cost),
                           position=buffer.episodes % capacity_episodes)
 
 
@@ -165,4 +203,5 @@ def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Transition:
         reward=jnp.take(flat(buffer.reward), index, axis=0),
         next_obs=jnp.take(obs, at + 1, axis=0),
         done=jnp.take(flat(buffer.done), index, axis=0),
+        cost=None if buffer.cost is None else jnp.take(flat(buffer.cost), index, axis=0),
     )

@@ -25,6 +25,10 @@ class Transition:
     ``done``: ``float32[batch]``, 1 only where the episode *terminated* (the
     particle tasks end by time limit only, which is not a termination, so
     targets bootstrap through it, as in the original MADDPG and MAAC code).
+    ``cost``: ``float32[batch, N]``, the step's cost (the environment's danger flag), a
+    reward channel of its own for a transform that weighs it at update time
+    (:attr:`ccrjax.transforms.base.Plain.reward_channels`); ``None`` (no array) otherwise,
+    so that the other variants' programs are unchanged.
     """
 
     obs: jax.Array
@@ -32,6 +36,7 @@ class Transition:
     reward: jax.Array
     next_obs: jax.Array
     done: jax.Array
+    cost: jax.Array | None = None
 
 
 class Learner(Protocol):

@@ -120,6 +120,9 @@ def run_episode(
             reward=reward.T,
             next_obs=to_batch_major_obs(next_obs),
             done=jnp.zeros((env.num_envs,), jnp.float32),
+            # The cost channel, for a transform that weighs it when the learner updates.
+            cost=(next_env_state.metrics["danger"].T
+                  if getattr(transform, "reward_channels", False) else None),
         )
         outputs = (
             transition,

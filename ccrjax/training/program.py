@@ -66,6 +66,16 @@ def first_nonfinite(nonfinite_iteration: Any, seeds: Sequence[int]) -> NonFinite
     return NonFinite(iteration=int(bad[index]), seed=int(seeds[index]))
 
 
+
+def channel_rewards(batch: Transition, weights: tuple[jax.Array, jax.Array]) -> Transition:
+    """``batch`` with the reward the learner trains on, ``a reward + b cost``, from the
+    stored channels and the weights ``(a, b)`` in force at this update (whatever they were
+    when the transitions were stored); the cost channel is dropped, the learner sees
+    rewards only."""
+    reward_weight, cost_weight = weights
+    return batch.replace(reward=reward_weight * batch.reward + cost_weight * batch.cost,
+                         cost=None)
+
 @struct.dataclass
 class TrainState:
     """Everything a training run carries from one iteration to the next (one seed)."""
@@ -122,6 +132,8 @@ class TrainProgram:
             reward=jnp.zeros((n,), jnp.float32),
             next_obs=jnp.zeros((n, f), jnp.float32),
             done=jnp.zeros((), jnp.float32),
+            cost=(jnp.zeros((n,), jnp.float32)
+                  if getattr(self.transform, "reward_channels", False) else None),
         )
         return TrainState(
             learner=self.learner.init(learner_key, n, f),
@@ -155,12 +167,21 @@ class TrainProgram:
         )
         buffer = add_episodes(state.buffer, episode.transitions)
 
+        channels = getattr(self.transform, "reward_channels", False)
+        # The weights of the reward channels in force now (a Lagrange multiplier just
+        # updated from this iteration's episodes), whenever the transitions were stored.
+        weights = self.transform.reward_weights(transform_state) if channels else None
+
         def do_updates(learner_state):
             def one_update(learner_state, key):
                 sample_key, learn_key = jax.random.split(key)
                 batch = sample(buffer, sample_key, config.resolved_learner.batch_size)
+                if channels:
+                    batch = channel_rewards(batch, weights)
                 if self.learner.needs_reward_stats:
-                    batch = self.learner.normalise_rewards(batch, *buffer.reward_mean_std())
+                    stats = (buffer.combined_mean_std(*weights) if channels
+                             else buffer.reward_mean_std())
+                    batch = self.learner.normalise_rewards(batch, *stats)
                 return self.learner.update(learner_state, batch, learn_key)
 
             keys = jax.random.split(update_key, config.updates_per_iteration)
@@ -253,11 +274,14 @@ class TrainProgram:
         ``fold_in(state.eval_key, k)``, so a run cut into chunks evaluates exactly as
         :meth:`train` does."""
         index = state.iteration // self.config.iterations_per_eval
+        # A transform's own numbers at this point (a Lagrange multiplier's path), if any.
+        transform_metrics = getattr(self.transform, "metrics", None)
         return {
             **self.evaluate(state, jax.random.fold_in(state.eval_key, index)),
             "env_steps": state.env_steps,
             "cumulative_danger_steps": state.danger_steps,
             "learning_danger_steps": state.learning_danger_steps,
+            **(transform_metrics(state.transform) if transform_metrics else {}),
         }
 
     def chunk(

@@ -19,6 +19,15 @@ pytrees, each of one fixed structure)::
     step(episode_state, env_state, action, next_env_state)
         -> (episode_state, obs, reward, info)
     end_episode(episode_state) -> state                        # after the episode's last step
+    reward_channels: bool                                      # a class attribute
+    reward_weights(state) -> (a, b)                            # when reward_channels
+
+A transform with ``reward_channels`` has each transition store the step's cost (the
+environment's danger flag) beside the reward it returns, and the learner trains on
+``a reward + b cost`` with the weights of the transform's state *at the update*, not those
+in force when the transition was stored: an off-policy learner's replay buffer outlives
+many changes of a Lagrange multiplier (:mod:`ccrjax.transforms.lagrangian`). The learner
+sees rewards only, as always.
 
 ``params`` holds the transform's numeric hyperparameters (the pessimistic
 penalty, CCR's lambda) as arrays inside the state, so that one compiled program
@@ -82,6 +91,7 @@ class Plain:
     """The environment's observations and rewards, unchanged."""
 
     name = "plain"
+    reward_channels = False  # no cost channel: the learner trains on the stored reward
 
     def extra_obs_size(self, env: EmergencyEnv) -> int:
         return 0

@@ -1,0 +1,130 @@
+"""The constrained baseline (:mod:`ccrjax.transforms.lagrangian`) and the cost channel it
+needs: the penalty a learner trains on is the one in force at the update, not the one in
+force when the transition was stored; the buffer's statistics of the combined reward are
+exact; a multiplier that never moves is the plain learner, bit for bit; the multiplier
+follows the training episodes' danger, waits for its warm-up, and several cost limits
+train side by side."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ccrjax.agents.replay import add_episodes, init_replay, sample
+from ccrjax.agents.types import Transition
+from ccrjax.training import TrainConfig, make_train
+from ccrjax.training.program import channel_rewards
+from ccrjax.transforms.lagrange import init_multiplier
+from ccrjax.transforms.lagrangian import Lagrangian
+
+N, T, E = 3, 4, 2
+
+
+def episodes(key) -> Transition:
+    """A block of ``E`` made-up episodes of ``T`` steps, step-major, with a cost channel."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    return Transition(
+        obs=jax.random.normal(k1, (T, E, N, 5)), action=jnp.zeros((T, E, N, 2)),
+        reward=jax.random.normal(k2, (T, E, N)),
+        next_obs=jax.random.normal(k1, (T, E, N, 5)), done=jnp.zeros((T, E)),
+        cost=(jax.random.uniform(k3, (T, E, N)) < 0.3).astype(jnp.float32))
+
+
+def buffer_with_cost():
+    example = jax.tree_util.tree_map(lambda x: x[0, 0], episodes(jax.random.PRNGKey(0)))
+    buffer = init_replay(example, 4 * E, T)
+    for k in range(3):
+        buffer = add_episodes(buffer, episodes(jax.random.PRNGKey(k)))
+    return buffer
+
+
+def test_the_learner_trains_on_the_multiplier_in_force_at_the_update():
+    transform = Lagrangian()
+    buffer = buffer_with_cost()  # stored while the multiplier was 0
+    batch = sample(buffer, jax.random.PRNGKey(5), 64)
+    state = {"multiplier": init_multiplier(3.0, 1)}  # the multiplier now
+    trained = channel_rewards(batch, transform.reward_weights(state))
+    np.testing.assert_allclose(trained.reward, (batch.reward - 3.0 * batch.cost) / 4.0,
+                               rtol=1e-6)
+    assert trained.cost is None  # the learner sees rewards only
+
+
+def test_the_buffer_knows_the_combined_rewards_mean_and_spread():
+    buffer = buffer_with_cost()
+    reward = np.concatenate([np.asarray(episodes(jax.random.PRNGKey(k)).reward).reshape(-1, N)
+                             for k in range(3)])
+    cost = np.concatenate([np.asarray(episodes(jax.random.PRNGKey(k)).cost).reshape(-1, N)
+                           for k in range(3)])
+    for a, b in ((1.0, 0.0), (0.25, -0.75), (0.5, -0.5)):
+        mean, std = buffer.combined_mean_std(jnp.float32(a), jnp.float32(b))
+        combined = a * reward + b * cost
+        np.testing.assert_allclose(mean, combined.mean(axis=0), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(std, combined.std(axis=0), rtol=1e-4, atol=1e-5)
+
+
+def test_a_buffer_without_a_cost_channel_keeps_its_structure():
+    plain = jax.tree_util.tree_map(lambda x: x[0, 0], episodes(jax.random.PRNGKey(0)))
+    plain = plain.replace(cost=None)
+    buffer = init_replay(plain, 2 * E, T)
+    assert buffer.cost is None and buffer.cost_sum is None
+    with pytest.raises(ValueError, match="disagree on a cost channel"):
+        add_episodes(buffer, episodes(jax.random.PRNGKey(1)))
+
+
+TINY = dict(scenario="turbulence", total_env_steps=600, num_envs=4, learning_starts=200,
+            eval_every=200, eval_episodes=4, episode_length=25)
+
+
+def final(config, params=None):
+    program = make_train(config)
+    return jax.jit(program.train)(jax.random.PRNGKey(3), params)
+
+
+@pytest.mark.parametrize("algo", ["iddpg", "maac"])
+def test_a_multiplier_that_never_moves_is_the_plain_learner(algo):
+    """With the multiplier held at 0 (no gain), the combined reward is the stored reward
+    exactly: the learner's parameters and the evaluations are plain's, bit for bit."""
+    plain_state, plain_history = final(TrainConfig(algo=algo, variant="plain", **TINY))
+    still = Lagrangian(kp=0.0, ki=0.0, kd=0.0)
+    state, history = final(TrainConfig(algo=algo, variant="lagrangian", transform=still, **TINY))
+    for a, b in zip(jax.tree_util.tree_leaves(plain_state.learner),
+                    jax.tree_util.tree_leaves(state.learner), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for name, values in plain_history.items():
+        np.testing.assert_array_equal(values, history[name], err_msg=name)
+    assert (np.asarray(history["lagrange_multiplier"]) == 0).all()
+
+
+def test_the_multiplier_follows_the_danger_of_the_training_episodes():
+    """In turbulence a nearly random team is in danger more often than a limit of 0.001
+    allows: the multiplier rises after the warm-up, and a limit of 1 (never reached) leaves
+    it at 0; several limits train in one program."""
+    config = TrainConfig(algo="iddpg", variant="lagrangian",
+                         transform=Lagrangian(controller="ascent", ki=1.0, warmup_episodes=2),
+                         **TINY)
+    program = make_train(config)
+    limits = jnp.array([0.001, 1.0])
+    keys = jnp.stack([jax.random.PRNGKey(0)] * 2)
+    state, history = jax.jit(jax.vmap(program.train))(keys, {"cost_limit": limits})
+    path = np.asarray(history["lagrange_multiplier"])  # [limits, evaluations]
+    assert path[0, 0] == 0.0 and path[0, -1] > 0.0
+    assert (path[1] == 0.0).all()
+    # Two training episodes per evaluation (200 steps of 4 environments x 25): the first
+    # evaluation after training sees the warm-up's two episodes, the multiplier still 0.
+    assert path[0, 1] == 0.0
+    np.testing.assert_array_equal(np.asarray(state.transform["episodes"]), [6, 6])
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"controller": "bang"}, "Lagrangian.controller must be one of"),
+    ({"cost_limit": -0.1}, "Lagrangian.cost_limit must be a finite number >= 0"),
+    ({"cap": 0.0}, "Lagrangian.cap must be a finite number > 0"),
+    ({"ema_p": 1.0}, r"Lagrangian.ema_p must be in \[0, 1\)"),
+    ({"delay": 0}, "Lagrangian.delay must be an integer >= 1"),
+    ({"warmup_episodes": -1}, "Lagrangian.warmup_episodes must be an integer >= 0"),
+])
+def test_bad_settings_are_named(fields, message):
+    with pytest.raises(ValueError, match=message):
+        Lagrangian(**fields)
