@@ -102,8 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = cli.Parser(
         prog=PROG,
-        description="Train a robot team (IDDPG, MADDPG or MAAC; plain, pessimistic or CCR) "
-        "on one emergency scenario, all seeds at once, into a run folder.",
+        description="Train a robot team (IDDPG, MADDPG or MAAC; plain, pessimistic, CCR or "
+        "a Lagrangian cost constraint) on one emergency scenario, all seeds at once, into a "
+        "run folder.",
         epilog="Every option left out keeps its default; with --resume, the run's own "
         "configuration (config.json) is used and options that contradict it are refused.",
     )
