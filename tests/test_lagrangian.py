@@ -82,6 +82,7 @@ def final(config, params=None):
     return jax.jit(program.train)(jax.random.PRNGKey(3), params)
 
 
+@pytest.mark.slow  # four training programs compiled
 @pytest.mark.parametrize("algo", ["iddpg", "maac"])
 def test_a_multiplier_that_never_moves_is_the_plain_learner(algo):
     """With the multiplier held at 0 (no gain), the combined reward is the stored reward
@@ -97,6 +98,7 @@ def test_a_multiplier_that_never_moves_is_the_plain_learner(algo):
     assert (np.asarray(history["lagrange_multiplier"]) == 0).all()
 
 
+@pytest.mark.slow  # a training program compiled
 def test_the_multiplier_follows_the_danger_of_the_training_episodes():
     """In turbulence a nearly random team is in danger more often than a limit of 0.001
     allows: the multiplier rises after the warm-up, and a limit of 1 (never reached) leaves
