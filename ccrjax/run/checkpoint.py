@@ -40,6 +40,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from ccrjax import terminal
+from ccrjax.run import distributed
 
 
 class _NotAnInterrupt(logging.Filter):
@@ -157,7 +158,7 @@ class Checkpoints:
     def drop_buffer(self, step: int) -> int:
         """Deletes checkpoint ``step``'s replay buffer; returns the bytes freed."""
         folder = self.directory / str(step) / "buffer"
-        if not folder.is_dir() or jax.process_index() != 0:  # several processes: one deletes
+        if not folder.is_dir() or not distributed.is_primary():  # several processes: one deletes
             return 0
         freed = sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
         shutil.rmtree(folder)
