@@ -55,6 +55,7 @@ from ccrjax.terminal import INTERRUPTED, Progress, Stop
 from ccrjax.training import TrainConfig, default_budgets
 from ccrjax.transforms import Pessimistic
 from ccrjax.transforms.ccr import CCR, CCRConfig, DangerFlags
+from ccrjax.transforms.lagrangian import Lagrangian
 
 PROG = TRAIN_COMMAND
 # The configuration dataclasses whose fields are options, and the options' prefix
@@ -113,9 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     for option, field, convert, extra in TRAIN_OPTIONS:
         extra = {key: value() if callable(value) else value for key, value in extra.items()}
         cli.add_field_option(run, option, DEFAULT_TRAIN, field, convert, **extra)
-    for option, owner, field in (("--lam", CCRConfig(), "lam"),
-                                 ("--penalty", Pessimistic(), "penalty")):
-        cli.add_field_option(run, option, owner, field, cli.non_negative_float)
+    for option, owner, field, convert in (
+            ("--lam", CCRConfig(), "lam", cli.non_negative_float),
+            ("--penalty", Pessimistic(), "penalty", cli.non_negative_float),
+            ("--cost-limit", Lagrangian(), "cost_limit", cli.float_in(0.0, 1.0))):
+        cli.add_field_option(run, option, owner, field, convert)
     spec = RunSpec(train=DEFAULT_TRAIN)
     for option, field, convert in SPEC_OPTIONS[:2]:
         cli.add_field_option(run, option, spec, field, convert)
@@ -155,7 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
         exclude=[f.name for f in dataclasses.fields(Layout) if f.name not in LAYOUT_OPTION_FIELDS])
     for prefix, (transform_type, names) in transform_option_groups().items():
         cli.add_dataclass_options(parser, transform_type, prefix,
-                                  f"{' / '.join(names)} parameters")
+                                  f"{' / '.join(names)} parameters",
+                                  exclude=("cost_limit",) if transform_type is Lagrangian
+                                  else ())  # --cost-limit
     return parser
 
 
@@ -249,6 +254,10 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
     own = group_overrides(args, transform_option_groups(), "--variant", variant)
     if args.penalty is not None and variant != "pessimistic":
         raise UsageError(f"--penalty applies to --variant pessimistic, not {variant}")
+    if args.cost_limit is not None:
+        if variant != "lagrangian":
+            raise UsageError(f"--cost-limit applies to --variant lagrangian, not {variant}")
+        own["cost_limit"] = args.cost_limit
     ccr = cli.dataclass_overrides(args, "ccr")
     if args.lam is not None:
         ccr["lam"] = args.lam
@@ -369,7 +378,8 @@ def _main(argv: list[str], stop: Stop) -> int:
         cli.fail(PROG, str(error))
     except ValueError as error:  # a configuration value the dataclasses refuse
         options = [o for action in parser._actions for o in action.option_strings]
-        cli.fail(PROG, cli.in_option_terms(str(error), option_prefixes(), options))
+        message = str(error).replace("Lagrangian.cost_limit", "--cost-limit")
+        cli.fail(PROG, cli.in_option_terms(message, option_prefixes(), options))
 
 
 if __name__ == "__main__":

@@ -119,9 +119,26 @@ def test_the_multiplier_follows_the_danger_of_the_training_episodes():
     np.testing.assert_array_equal(np.asarray(state.transform["episodes"]), [6, 6])
 
 
+@pytest.mark.slow  # an iteration compiled
+def test_a_multiplier_gone_non_finite_stops_the_run_like_a_non_finite_loss():
+    """The reward weights are checked with the learner's parameters: a non-finite multiplier
+    marks the iteration non-finite (the run stops naming it) and keeps the last good state."""
+    program = make_train(TrainConfig(algo="iddpg", variant="lagrangian", **TINY))
+    state = program.init(jax.random.PRNGKey(0))
+    multiplier = state.transform["multiplier"].replace(integral=jnp.float32(jnp.nan),
+                                                       multiplier=jnp.float32(jnp.nan))
+    broken = state.replace(transform={**state.transform, "multiplier": multiplier})
+    after, _ = jax.jit(program.iteration)(broken)
+    assert int(after.nonfinite_iteration) == 0
+    assert np.isnan(float(after.transform["multiplier"].multiplier))  # the state it had
+    healthy, _ = jax.jit(program.iteration)(state)
+    assert int(healthy.nonfinite_iteration) == -1
+
+
 @pytest.mark.parametrize("fields, message", [
     ({"controller": "bang"}, "Lagrangian.controller must be one of"),
     ({"cost_limit": -0.1}, "Lagrangian.cost_limit must be a finite number >= 0"),
+    ({"cost_limit": 1.5}, "Lagrangian.cost_limit must be at most 1"),
     ({"cap": 0.0}, "Lagrangian.cap must be a finite number > 0"),
     ({"ema_p": 1.0}, r"Lagrangian.ema_p must be in \[0, 1\)"),
     ({"delay": 0}, "Lagrangian.delay must be an integer >= 1"),

@@ -443,6 +443,15 @@ def test_an_unreadable_checkpoint_falls_back_to_the_previous_one(finished_run, t
         # A budget that ends before learning starts (25,600 transitions) learns nothing.
         (["--steps", "20000"], "(--steps) 20,000 ends before learning starts: at least 25,600"),
         (["--steps", "30000", "--learning-starts", "40000"], "at least 40,000"),
+        (["--variant", "lagrangian", "--cost-limit", "1.5"], "--cost-limit: must be in [0.0, 1.0]"),
+        (["--variant", "lagrangian", "--cost-limit", "inf"], "--cost-limit: must be finite"),
+        (["--variant", "ccr", "--cost-limit", "0.1"], "applies to --variant lagrangian"),
+        (["--variant", "plain", "--cost-limit", "0.1"], "lagrangian, not plain"),
+        (["--variant", "lagrangian", "--lagrange-kp", "-1"], "--lagrange-kp must be a finite"),
+        (["--variant", "lagrangian", "--lagrange-ki", "nan"], "--lagrange-ki: must be finite"),
+        (["--variant", "lagrangian", "--lagrange-cap", "0"], "--lagrange-cap must be a finite"),
+        (["--variant", "lagrangian", "--lagrange-controller", "bang"], "--lagrange-controller"),
+        (["--variant", "plain", "--lagrange-kd", "1"], "--lagrange"),
     ],
 )
 def test_bad_command_lines_get_one_line_and_status_2(argv, fragment, tmp_path, capsys):
@@ -674,6 +683,40 @@ def test_a_finished_run_extends_exactly_as_if_started_with_the_larger_budget(
     assert status == 0 and "is finished" in printed and "note:" not in err, err
     status, printed, err = run_main(train, [*resume, "--steps", rounded], capsys)
     assert status == 0 and "is finished" in printed and f"--steps {rounded:,} runs as" in err
+
+
+@pytest.mark.slow
+def test_a_lagrangian_run_records_its_multiplier_and_resumes_exactly(tmp_path, capsys):
+    """``--variant lagrangian --cost-limit``: the multiplier's path and its input are columns
+    of metrics.csv and panels of the curves; a run stopped half way and resumed (multiplier
+    state, cost channel of the buffer and all) ends exactly where the straight run ends."""
+    tiny = [str(a) for a in TINY]
+    tiny[tiny.index("--variant") + 1] = "lagrangian"
+    tiny += ["--cost-limit", "0.001", "--lagrange-ki", "1"]
+    straight, cut = tmp_path / "straight", tmp_path / "cut"
+    status, _, err = run_main(train, [*tiny, "--out", straight], capsys)
+    assert status == 0, err
+    half = [*tiny, "--out", cut]
+    half[half.index("--steps") + 1] = str(FINAL_STEPS // 2)
+    status, _, err = run_main(train, half, capsys)
+    assert status == 0, err
+    status, _, err = run_main(train, ["--out", cut, "--resume", "--steps", FINAL_STEPS,
+                                      "--keep-buffer"], capsys)
+    assert status == 0, err
+    a, b = final_state(straight), final_state(cut)
+    assert a.step == b.step == FINAL_STEPS and a.buffer.cost is not None
+    for x, y in zip(jax.tree_util.tree_leaves((a.state, a.buffer)),
+                    jax.tree_util.tree_leaves((b.state, b.buffer)), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    rows = read_metrics(straight / "metrics.csv")
+    assert [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows] == [
+        {k: v for k, v in r.items() if k != "wall_time_s"}
+        for r in read_metrics(cut / "metrics.csv")]
+    assert {"lagrange_multiplier", "lagrange_cost"} <= set(rows[0])
+    assert rows[0]["lagrange_multiplier"] == 0.0 and rows[-1]["lagrange_multiplier"] > 0.0
+    summary = json.loads((straight / "summary.json").read_text())
+    assert summary["per_seed"]["3"]["lagrange_multiplier"] == rows[-2]["lagrange_multiplier"]
+    assert (straight / "curves.png").stat().st_size > 0
 
 
 def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished_run, tmp_path):

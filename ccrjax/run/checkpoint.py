@@ -89,15 +89,21 @@ def _shapes(tree: Any) -> list[tuple[tuple[int, ...], str]]:
 
 def _as_like(saved: Any, abstract: Any) -> Any:
     """A buffer restored as saved (a dict of arrays) in the dataclass of ``abstract``, after
-    checking that its fields, dtypes and ranks are ``abstract``'s (sizes may differ)."""
-    fields = {f.name for f in dataclasses.fields(abstract)}
-    if not isinstance(saved, dict) or set(saved) != fields:
+    checking that its fields, dtypes and ranks are ``abstract``'s (sizes may differ). A field
+    that ``abstract`` holds as ``None`` (a channel this run does not keep, such as the cost of
+    a transform without reward channels) must be absent or ``None`` in ``saved`` too."""
+    if not isinstance(saved, dict):
         raise ValueError("the saved buffer has other fields")
-    for name in fields:
+    names = [f.name for f in dataclasses.fields(abstract)]
+    kept = {name for name in names if getattr(abstract, name) is not None}
+    if {name for name, value in saved.items() if value is not None} != kept:
+        raise ValueError("the saved buffer has other fields")
+    for name in kept:
         want, have = getattr(abstract, name), saved[name]
         if np.dtype(have.dtype) != np.dtype(want.dtype) or np.ndim(have) != len(want.shape):
             raise ValueError(f"the saved buffer's {name} is {have.dtype}{list(np.shape(have))}")
-    return type(abstract)(**{name: jax.numpy.asarray(saved[name]) for name in fields})
+    return type(abstract)(**{name: jax.numpy.asarray(saved[name]) if name in kept else None
+                             for name in names})
 
 
 def report_skipped(restored: Restored) -> None:

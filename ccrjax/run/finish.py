@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from ccrjax.cli import UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
-from ccrjax.run.folder import RunFolder, fingerprint, folder_bytes, summary_table
+from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, folder_bytes, summary_table
 from ccrjax.run.policy import POLICY_DIR, POLICY_RECORD, export_policy
 from ccrjax.run.session import drop_finished_buffer
 from ccrjax.run.spec import RunSpec
@@ -27,7 +27,7 @@ from ccrjax.viz.episode_pictures import (
     unbroken,
     write_episode_pictures,
 )
-from ccrjax.viz.plots import Curves, curves_from_rows, draw_curves
+from ccrjax.viz.plots import CURVE_METRICS, Curves, curves_from_rows, draw_curves
 
 
 def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
@@ -37,12 +37,18 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     final_rows = [row for row in history if row["env_steps"] == final_steps]
     summary = folder.write_summary(final_rows, {"wall_time_s": wall})
     curves = Curves()
-    steps, values = curves_from_rows(history)
+    own = [name for name in history[-1] if name not in CSV_COLUMNS]  # the transform's numbers
+    metrics = (*CURVE_METRICS, *own)
+    steps, values = curves_from_rows(history, metrics)
     config = program.config
     label = f"{config.algo} {config.variant}"
     curves.add(label, steps, values)
     plural = "s" if len(seeds) > 1 else ""
-    draw_curves(curves, folder.path / "curves.png",
+    limit = getattr(program.transform, "cost_limit", None)  # a constraint's limit, drawn
+    lines = ({} if limit is None else
+             {name: (float(limit), "cost limit") for name in ("danger_frequency", *own)
+              if name.endswith(("danger_frequency", "cost"))})
+    draw_curves(curves, folder.path / "curves.png", metrics=metrics, lines=lines,
                 title=f"{config.scenario}: {label}, {len(seeds)} seed{plural}")
     key = jax.random.fold_in(jax.random.PRNGKey(seeds[0]), PICTURE_KEY)
     record = record_trained_episode(

@@ -57,6 +57,8 @@ METRIC_TITLES = {
     "hazard_distance": "average distance to the hazard centre",
     "cumulative_danger_steps": "cumulative dangerous robot-steps in training",
     "learning_danger_steps": "dangerous robot-steps since learning started",
+    "lagrange_multiplier": "Lagrange multiplier (danger's price)",
+    "lagrange_cost": "training danger (the multiplier's input)",
 }
 
 # The range of every metric, to which confidence intervals are clipped (the return is a
@@ -69,6 +71,8 @@ METRIC_RANGES: dict[str, tuple[float, float]] = {
     "hazard_distance": (0.0, math.inf),
     "cumulative_danger_steps": (0.0, math.inf),
     "learning_danger_steps": (0.0, math.inf),
+    "lagrange_multiplier": (0.0, math.inf),
+    "lagrange_cost": (0.0, 1.0),
 }
 
 
@@ -173,13 +177,21 @@ def format_value(value: Any) -> str:
     return repr(float(value))
 
 
+def csv_columns(rows: Sequence[dict[str, Any]]) -> tuple[str, ...]:
+    """:data:`CSV_COLUMNS`, then the transform's own numbers the rows hold (a Lagrange
+    multiplier's path), in the order the transform gives them."""
+    extra = [name for name in rows[0] if name not in CSV_COLUMNS] if rows else []
+    return (*CSV_COLUMNS, *extra)
+
+
 def csv_text(rows: Sequence[dict[str, Any]], header: bool = True) -> str:
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
+    columns = csv_columns(rows)
     if header:
-        writer.writerow(CSV_COLUMNS)
+        writer.writerow(columns)
     for row in rows:
-        writer.writerow([format_value(row[c]) for c in CSV_COLUMNS])
+        writer.writerow([format_value(row[c]) for c in columns])
     return buffer.getvalue()
 
 
@@ -277,13 +289,15 @@ class RunFolder:
 
     # ------------------------------------------------------------ summary
     def write_summary(self, final_rows: Sequence[dict[str, Any]], extra: dict[str, Any]) -> dict:
-        """``summary.json``: the final evaluation per seed, mean and 95% interval per metric."""
-        metrics = POINT_METRICS
+        """``summary.json``: the final evaluation per seed, mean and 95% interval per metric
+        (the transform's own numbers too, such as the final Lagrange multiplier)."""
+        metrics = csv_columns(final_rows)[len(CSV_COLUMNS) - len(POINT_METRICS):]
         summary = {
             "env_steps_per_seed": final_rows[0]["env_steps"],
             "seeds": [row["seed"] for row in final_rows],
             "per_seed": {str(row["seed"]): {m: row[m] for m in metrics} for row in final_rows},
-            "mean_ci95": {m: mean_ci([row[m] for row in final_rows], bounds=METRIC_RANGES[m])
+            "mean_ci95": {m: mean_ci([row[m] for row in final_rows],
+                                     bounds=METRIC_RANGES.get(m, (-math.inf, math.inf)))
                           for m in metrics},
             **extra,
         }

@@ -24,6 +24,7 @@ from ccrjax.agents.replay import grow
 from ccrjax.cli import UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
 from ccrjax.run.folder import (
+    CSV_COLUMNS,
     EVAL_METRICS,
     POINT_METRICS,
     TRAIN_COMMAND,
@@ -38,14 +39,17 @@ from ccrjax.training.program import NonFinite, first_nonfinite
 
 
 def point_rows(point: dict, seeds: Sequence[int], wall: float) -> list[dict[str, Any]]:
-    """One ``metrics.csv`` row per seed from an evaluation point (leaves ``[seeds]``)."""
+    """One ``metrics.csv`` row per seed from an evaluation point (leaves ``[seeds]``): the
+    point's metrics, then the transform's own numbers (a Lagrange multiplier's path)."""
 
+    own = [name for name in point if name not in POINT_METRICS and name != "env_steps"]
     rows = []
     for index, seed in enumerate(seeds):
         row = {"seed": seed, "env_steps": int(point["env_steps"][index]), "wall_time_s": wall}
         for name in POINT_METRICS:  # the counts of robot-steps as the integers they are
             value = point[name][index]
             row[name] = int(value) if name in TRAINING_COUNTS else float(value)
+        row.update({name: float(point[name][index]) for name in own})
         rows.append(row)
     return rows
 
@@ -310,4 +314,7 @@ def eval_scalars(row: dict[str, Any]) -> dict[str, float]:
     scalars = {f"eval/{name}": row[name] for name in EVAL_METRICS}
     for name in TRAINING_COUNTS:
         scalars[f"train/{name}"] = row[name]
+    for name in row:  # the transform's own numbers
+        if name not in CSV_COLUMNS:
+            scalars[f"transform/{name}"] = row[name]
     return scalars

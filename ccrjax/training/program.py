@@ -199,6 +199,11 @@ class TrainProgram:
             learning, do_updates, skip_updates, state.learner
         )
         finite = all_finite(learner_state)
+        if channels:  # a multiplier gone non-finite stops the run as a non-finite loss does
+            finite = finite & all_finite(weights)
+            transform_state = jax.tree_util.tree_map(
+                lambda new, old: jnp.where(finite, new, old), transform_state, state.transform
+            )
         learner_state = jax.tree_util.tree_map(
             lambda new, old: jnp.where(finite, new, old), learner_state, state.learner
         )

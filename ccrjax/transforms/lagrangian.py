@@ -61,6 +61,9 @@ class Lagrangian(Plain):
 
     def __post_init__(self) -> None:
         check_number("Lagrangian", "cost_limit", self.cost_limit, positive=False)
+        if self.cost_limit > 1.0:
+            raise ValueError("Lagrangian.cost_limit must be at most 1 (a frequency of dangerous "
+                             f"robot-steps), got {self.cost_limit!r}")
         if self.controller not in CONTROLLERS:
             raise ValueError(f"Lagrangian.controller must be one of {CONTROLLERS}, "
                              f"got {self.controller!r}")
@@ -120,5 +123,7 @@ class Lagrangian(Plain):
         return 1.0 / (1.0 + multiplier), -multiplier / (1.0 + multiplier)
 
     def metrics(self, state) -> dict[str, jax.Array]:
-        """The multiplier in force, for the run's history."""
-        return {"lagrange_multiplier": state["multiplier"].multiplier}
+        """For the run's history: the multiplier in force, and the training episodes' danger
+        frequency as the controller sees it (smoothed, ``ema_d``), beside the limit."""
+        return {"lagrange_multiplier": state["multiplier"].multiplier,
+                "lagrange_cost": state["multiplier"].cost_ema}

@@ -82,8 +82,9 @@ def curves_from_rows(rows: Sequence[dict], metrics: Sequence[str] = CURVE_METRIC
 
 def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
                 metrics: Sequence[str] = CURVE_METRICS, title: str | None = None,
-                dpi: int = 120) -> None:
-    """One panel per metric: each run's mean over seeds, its 95% band, its seeds faint."""
+                lines: dict[str, tuple[float, str]] | None = None, dpi: int = 120) -> None:
+    """One panel per metric: each run's mean over seeds, its 95% band, its seeds faint;
+    ``lines`` a dashed horizontal line and its label on some panels (a cost limit)."""
     columns = 2 if len(metrics) == 4 else min(3, len(metrics))  # no empty panel for 4
     rows = -(-len(metrics) // columns)
     fig = Figure(figsize=(4.2 * columns, 3.0 * rows + (0.4 if title else 0.0)), dpi=dpi)
@@ -104,6 +105,11 @@ def draw_curves(curves: Curves, path: str | os.PathLike[str], *,
                 ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
                 for seed_values in per_seed:
                     ax.plot(steps, seed_values, color=colour, linewidth=0.6, alpha=0.3)
+        if lines and metric in lines:
+            value, text = lines[metric]
+            ax.axhline(value, color="black", linestyle="--", linewidth=1.0)
+            ax.annotate(text, (0.99, value), xycoords=("axes fraction", "data"), ha="right",
+                        va="bottom", fontsize=7)
         ax.set_title(METRIC_TITLES.get(metric, metric), fontsize=10)
         ax.set_xlabel("environment steps per seed", fontsize=8)
         ax.xaxis.set_major_formatter(FuncFormatter(short_number))
