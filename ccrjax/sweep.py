@@ -45,6 +45,7 @@ from ccrjax.run.sweep_grid import (
     DEFAULT_VALUES,
     REFERENCE_TEXT,
     SEARCHED_PARAMETER,
+    grid_params,
     nonfinite_runs,
     nonfinite_text,
     search_grid,
@@ -131,7 +132,7 @@ def run_sweep(args: argparse.Namespace) -> dict[str, Any]:
     print(f"{PROG}: {args.algo} + {args.variant} on {args.scenario}: {len(values)} {name} x "
           f"{len(seeds)} seeds = {len(grid_seeds)} runs of {config.total_env_steps_run:,} "
           "steps, one program", file=sys.stderr, flush=True)
-    runs = train_grid(config, grid_seeds, {name: grid_values},
+    runs = train_grid(config, grid_seeds, grid_params(config, name, grid_values),
                       log=lambda text: print(text, file=sys.stderr, flush=True))
     result = {
         "variant": args.variant, "parameter": name,

@@ -52,6 +52,7 @@ from ccrjax.run.folder import EVAL_METRICS, git_commit, write_atomic
 from ccrjax.run.stats import format_mean_ci, plateau_or_undetermined
 from ccrjax.run.sweep_grid import (
     REFERENCE_NAME,
+    grid_params,
     nonfinite_runs,
     nonfinite_text,
     search_grid,
@@ -93,7 +94,7 @@ LEARNER_NAMES = protocol.LEARNER_NAMES
 class Settings(protocol.Settings):
     """What every cell of a search is trained with (a cell made otherwise is redone)."""
 
-    variant: str  # the searched transform: ccr (lambda) or pessimistic (penalty)
+    variant: str  # the searched transform: ccr, pessimistic or lagrangian
     values: tuple[float, ...]  # the searched values (0 is trained beside them)
     seeds: tuple[int, ...] = protocol.SELECTION_SEEDS
 
@@ -113,7 +114,7 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
     config = settings.config(scenario, algo)
     values, seeds = list(settings.grid_values), list(settings.seeds)
     parameter, grid_seeds, grid_values = search_grid(config, values, seeds)
-    training = GridTraining(config, grid_seeds, {parameter: grid_values})
+    training = GridTraining(config, grid_seeds, grid_params(config, parameter, grid_values))
     training.compile(not settings.quick)
     runs = partial.train(training, f"{scenario}-{algo}")
     history = {m: runs.history[m].tolist() for m in ("return", "success_rate",
@@ -183,13 +184,20 @@ def not_the_protocols(settings: Settings) -> str | None:
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),
         *([f"--steps {settings.steps}"]
-          if {a: settings.budget(a) for a in ALGOS} not in (protocol.BUDGETS,
-                                                            protocol.LONGER_BUDGETS)
+          if {a: settings.budget(a) for a in ALGOS} not in protocol_budgets(settings.variant)
           else []),
         *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
           != (protocol.EVAL_EVERY, protocol.EVAL_EPISODES) else []),
     ]
     return "; ".join(reasons) or None
+
+
+def protocol_budgets(variant: str) -> list[dict[str, int]]:
+    """The budgets at which ``variant``'s search is the protocol's: the Lagrangian's at its
+    amendment's budget, the others at the protocol's budgets or its longer ones."""
+    if variant == "lagrangian":
+        return [{algo: protocol.LAGRANGIAN_BUDGET for algo in ALGOS}]
+    return [protocol.BUDGETS, protocol.LONGER_BUDGETS]
 
 
 def selection(settings: Settings, cells: dict, reference_cells: dict | None = None
@@ -280,10 +288,11 @@ def search_markdown(result: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = cli.Parser(prog=PROG, description="Search CCR's lambda or the pessimistic penalty "
-                        "over every scenario and learner under one protocol and rule.")
+    parser = cli.Parser(prog=PROG, description="Search CCR's lambda, the pessimistic penalty "
+                        "or the Lagrangian's cost limit over every scenario and learner under "
+                        "one protocol and rule.")
     parser.add_argument("--variant", choices=sorted(protocol.SEARCHED), required=True,
-                        help="ccr (lambda) or pessimistic (penalty)")
+                        help="ccr (lambda), pessimistic (penalty) or lagrangian (cost limit)")
     parser.add_argument("--values", type=cli.float_in(0.0, low_open=True), nargs="+",
                         default=None, help="searched values, > 0 (default: the protocol's six "
                         "of the variant); 0, the rule's reference, is always trained beside them")
@@ -294,7 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first seed (default: %(default)s; the tables use 0-9)")
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
-                        f"protocol's budgets, {protocol.budgets_text()})")
+                        f"protocol's budgets, {protocol.budgets_text()}; the Lagrangian's "
+                        f"{protocol.LAGRANGIAN_BUDGET:,})")
     parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
                         default=list(PAPER_SCENARIOS),
                         help="scenarios (default: all three)")
@@ -321,6 +331,8 @@ def settings_from(args: argparse.Namespace) -> Settings:
                       eval_episodes=protocol.QUICK_EVAL_EPISODES)
     if args.steps is not None:
         fields["steps"] = args.steps
+    elif args.variant == "lagrangian" and not args.quick:
+        fields["steps"] = protocol.LAGRANGIAN_BUDGET
     count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
     problem = protocol.seed_overlap(fields["seeds"], args.seed_offset,

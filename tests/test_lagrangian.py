@@ -7,6 +7,8 @@ train side by side."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,10 +16,12 @@ import pytest
 
 from ccrjax.agents.replay import add_episodes, init_replay, sample
 from ccrjax.agents.types import Transition
+from ccrjax.run.sweep_grid import grid_params, search_grid
 from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.program import channel_rewards
 from ccrjax.transforms.lagrange import init_multiplier
 from ccrjax.transforms.lagrangian import Lagrangian
+from experiments import protocol
 
 N, T, E = 3, 4, 2
 
@@ -147,3 +151,29 @@ def test_a_multiplier_gone_non_finite_stops_the_run_like_a_non_finite_loss():
 def test_bad_settings_are_named(fields, message):
     with pytest.raises(ValueError, match=message):
         Lagrangian(**fields)
+
+
+def test_a_search_of_the_cost_limit_trains_the_unconstrained_learner_as_its_reference():
+    """Value 0 of the cost limit stands for no constraint: its runs hold the multiplier at 0
+    (no gain), the other runs take their limit with the protocol's gains."""
+    config = protocol.run_config(protocol.Settings(seeds=(100,)), "turbulence", "iddpg",
+                                 "lagrangian")
+    name, seeds, values = search_grid(config, [0.0, 0.01, 0.3], [100, 101])
+    params = grid_params(config, name, values)
+    assert name == "cost_limit" and seeds == [100, 101] * 3
+    assert params["cost_limit"] == [1.0, 1.0, 0.01, 0.01, 0.3, 0.3]
+    for gain in ("kp", "ki", "kd"):
+        default = getattr(config.transform, gain)
+        assert params[gain] == [0.0, 0.0, *[default] * 4] and default > 0
+    assert grid_params(config, "penalty", [0.0, 3.0]) == {"penalty": [0.0, 3.0]}
+
+
+def test_the_protocols_multiplier_waits_for_the_end_of_the_random_warm_up():
+    settings = protocol.Settings(seeds=(100,))
+    config = protocol.run_config(settings, "turbulence", "maddpg", "lagrangian")
+    assert config.transform.warmup_episodes == 25_600 // config.steps_per_iteration == 128
+    assert config.total_env_steps == protocol.BUDGETS["maddpg"]
+    quick = protocol.run_config(dataclasses.replace(settings, quick=True, steps=400,
+                                                    eval_every=200),
+                                "turbulence", "maddpg", "lagrangian")
+    assert quick.transform.warmup_episodes == 2  # 40 transitions, 20 per episode

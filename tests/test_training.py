@@ -289,3 +289,23 @@ def test_the_non_finite_report_names_the_earliest_iteration_and_its_seed():
     iterations = jnp.array([-1, 9, 5, 5], dtype=jnp.int32)
     assert first_nonfinite(iterations, [10, 11, 12, 13]) == NonFinite(5, 12)
     assert "iteration 5 (seed 12)" in NonFinite(5, 12).message()
+
+
+@pytest.mark.slow  # two training programs compiled
+def test_a_run_is_the_first_part_of_a_longer_run_once_the_budget_fills_the_buffer():
+    """With the replay capacity reached (the learner's ``buffer_size`` below the budget),
+    nothing else in a run depends on its budget: a run's evaluations are those of a run
+    twice as long at the same steps (what lets a smaller budget be read off longer runs'
+    evaluations, docs/protocol.md, amendment of 2026-12-02)."""
+    base = dict(algo="iddpg", scenario="turbulence", variant="ccr", num_envs=4,
+                learning_starts=200, eval_every=200, eval_episodes=4, episode_length=25,
+                learner=DDPGConfig(buffer_size=400, batch_size=32))
+    short = TrainConfig(total_env_steps=600, **base)
+    long = TrainConfig(total_env_steps=1200, **base)
+    assert short.replay_capacity == long.replay_capacity == 400
+    _, short_history = jax.jit(make_train(short).train)(jax.random.PRNGKey(1), None)
+    _, long_history = jax.jit(make_train(long).train)(jax.random.PRNGKey(1), None)
+    for name, values in short_history.items():
+        values = np.asarray(values)
+        np.testing.assert_array_equal(values, np.asarray(long_history[name])[: values.shape[0]],
+                                      err_msg=name)

@@ -21,15 +21,22 @@ from ccrjax.training.grid import GridRuns
 
 # The run parameter each searchable variant takes, and the values searched by default
 # (the protocol's, docs/protocol.md).
-SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty"}
+SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty", "lagrangian": "cost_limit"}
 DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
-                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)}
+                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0),
+                  "lagrangian": (0.003, 0.01, 0.02, 0.05, 0.1, 0.3)}
+# Where the value 0 of a parameter is not itself the reference, the run numbers that make
+# the reference: a cost limit of 0 would be the strictest constraint, so the Lagrangian's
+# reference is its multiplier held at 0 (no gain), which is exactly the plain learner.
+REFERENCE_PARAMS = {"cost_limit": {"cost_limit": 1.0, "kp": 0.0, "ki": 0.0, "kd": 0.0}}
 # What the value 0 of each searched parameter is (the selection rule's reference): the
 # penalty 0 is exactly the plain learner; CCR's lambda 0 leaves the reward unchanged, but
 # its robots still observe the shared scores. A short name for tables and legends, and a
 # sentence for captions.
-REFERENCE_NAME = {"penalty": "plain", "lam": "no CCR reward"}
+REFERENCE_NAME = {"penalty": "plain", "lam": "no CCR reward", "cost_limit": "plain"}
 REFERENCE_TEXT = {"penalty": "penalty 0 is exactly the plain learner",
+                  "cost_limit": "cost limit 0 stands for no constraint (the multiplier held at "
+                                "0), exactly the plain learner",
                   "lam": "lambda 0 is the learner without CCR's reward (its robots still "
                          "observe the shared scores)"}
 
@@ -51,6 +58,20 @@ def search_grid(config: TrainConfig, values: Sequence[float], seeds: Sequence[in
     grid_seeds = [int(s) for _ in values for s in seeds]
     grid_values = [float(v) for v in values for _ in seeds]
     return name, grid_seeds, grid_values
+
+
+def grid_params(config: TrainConfig, name: str, grid_values: Sequence[float]
+                ) -> dict[str, list[float]]:
+    """The transform numbers of a search's runs: ``name`` takes ``grid_values``, except in
+    the runs of value 0 where the parameter's :data:`REFERENCE_PARAMS` make the reference
+    (the other numbers keep ``config``'s transform's values)."""
+    reference = REFERENCE_PARAMS.get(name)
+    if reference is None:
+        return {name: [float(v) for v in grid_values]}
+    defaults = config.resolved_transform.default_params()
+    return {key: [float(reference[key]) if v == 0.0 else
+                  float(v) if key == name else float(defaults[key]) for v in grid_values]
+            for key in (name, *(k for k in reference if k != name))}
 
 
 def search_rows(runs: GridRuns, values: Sequence[float], grid_values: Sequence[float],
