@@ -43,7 +43,7 @@ lint: install
 
 bench: install
 	$(PY) benchmarks/env_throughput.py
-	$(PY) benchmarks/train_throughput.py --variants plain ccr
+	$(PY) benchmarks/train_throughput.py --variants plain ccr lagrangian
 	$(PY) benchmarks/replay_compare.py
 
 # The searches of docs/protocol.md: CCR's lambda and the pessimistic penalty, alike, one

@@ -5,20 +5,20 @@
     python benchmarks/train_throughput.py --algos maddpg --seeds 20   # a grid program's shape
     python benchmarks/train_throughput.py --algos maddpg maac --seeds 3 --maac-updates 4x1024 1x256
 
-For each learner and variant it compiles ``TrainProgram.run`` (rollout of every
-training environment through the transform, replay insertion, learner updates, all
-in one ``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after
-compilation, the variants in turns, with the state donated (as in a long run, no
-call copies the replay buffer), and reports the medians: environment steps per
-second, learner updates per second, the arithmetic of one update (matrix-multiply
-FLOPs) with the rate it implies, so the CPU's utilisation can be judged, and each
-variant's time per step relative to the first variant's (with ``--variants plain
-ccr``: CCR's overhead). Learning starts at once (``learning_starts=0``) so every
-measured iteration includes its updates. With ``--seeds N`` the program trains N seeds at
-once (``vmap``), as the experiments' grid programs do (20 or 21 runs); the rates are then
-given per seed and for all seeds together. With ``--maac-updates GxB ...`` MAAC is timed at
-each of those update settings (G updates of batch B every ``update_every`` steps) instead of
-its default, as ``docs/protocol.md`` chose the experiments' setting.
+For each learner and variant it compiles ``TrainProgram.run`` (rollout of every training
+environment through the transform, replay insertion, learner updates, all in one
+``lax.scan``), runs ``--iterations`` iterations ``--repeats`` times after compilation, the
+variants in turns, with the state donated (as in a long run, no call copies the replay
+buffer), and reports the medians: environment steps per second, learner updates per second,
+the arithmetic of one update (matrix-multiply FLOPs) with the rate it implies, so the CPU's
+utilisation can be judged, and each variant's time per step relative to the first variant's
+(with ``--variants plain ccr lagrangian``: CCR's and the Lagrangian's overheads). Learning
+starts at once (``learning_starts=0``) so every measured iteration includes its updates.
+With ``--seeds N`` the program trains N seeds at once (``vmap``), as the experiments' grid
+programs do (20 or 21 runs); the rates are then given per seed and for all seeds together.
+With ``--maac-updates GxB ...`` MAAC is timed at each of those update settings (G updates of
+batch B every ``update_every`` steps) instead of its default, as ``docs/protocol.md`` chose
+the experiments' setting.
 """
 
 from __future__ import annotations
@@ -35,8 +35,9 @@ import jax.numpy as jnp
 from ccrjax import cli
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.envs.scenarios import SCENARIOS
+from ccrjax.registry import transform_names
 from ccrjax.run.folder import git_commit
-from ccrjax.training import ALGOS, VARIANTS, TrainConfig, make_train
+from ccrjax.training import ALGOS, TrainConfig, make_train
 
 
 def update_setting(text: str) -> tuple[int, int]:
@@ -136,8 +137,9 @@ def main(argv: list[str] | None = None) -> int:
                         description=__doc__.split("\n")[0])
     parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
                         help="learners to time (default: all three)")
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=["plain"],
-                        help="variants to time, in turns (default: plain)")
+    parser.add_argument("--variants", nargs="+", choices=transform_names(), default=["plain"],
+                        help="variants to time, in turns (default: plain); the first is the "
+                        "others' reference")
     parser.add_argument("--scenario", choices=tuple(SCENARIOS), default="hidden_obstacle",
                         help="scenario (default: %(default)s)")
     parser.add_argument("--iterations", type=cli.positive_int, default=20,

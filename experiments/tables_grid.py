@@ -74,6 +74,10 @@ class Settings(protocol.Settings):
                      "ccr": CCR(CCRConfig(lam=self.lam))}[variant]
         return protocol.run_config(self, scenario, algo, variant, transform=transform)
 
+    def run_params(self, variant: str) -> dict[str, float]:
+        """The run parameters a program of ``variant`` alone trains every seed with."""
+        return {"ccr": {"lam": self.lam}}[variant]
+
 
 QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,
              eval_episodes=protocol.QUICK_EVAL_EPISODES, behaviour_episodes=4,
@@ -113,9 +117,10 @@ def build_training(job: Job, settings: Settings) -> GridTraining:
         penalties = [0.0] * len(seeds) + [settings.penalty] * len(seeds)
         return GridTraining(config, seeds + seeds, {"penalty": penalties},
                             record_episodes=episodes, record_key=key)
-    config = settings.config(job.scenario, job.algo, "ccr")
-    return GridTraining(config, seeds, {"lam": [settings.lam] * len(seeds)},
-                        record_episodes=episodes, record_key=key)
+    (variant,) = job.variants
+    config = settings.config(job.scenario, job.algo, variant)
+    params = {name: [value] * len(seeds) for name, value in settings.run_params(variant).items()}
+    return GridTraining(config, seeds, params, record_episodes=episodes, record_key=key)
 
 
 def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
@@ -132,7 +137,8 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
             "seeds": part.seeds,
             "params": {k: [float(x) for x in v] for k, v in part.params.items()},
             "final": {m: [float(x) for x in final[m]] for m in METRICS},
-            "history": {m: part.history[m].tolist() for m in (*METRICS, "env_steps")},
+            # The metrics' curves, and the transform's own (a Lagrange multiplier's path).
+            "history": {m: part.history[m].tolist() for m in part.history},
             "return_plateau": plateau_or_undetermined(part.history["return"]),
             "nonfinite_iteration": part.nonfinite_iteration.tolist(),
             "train_seconds_of_program": runs.run_s,
@@ -198,12 +204,14 @@ def cell_stem(scenario: str, algo: str, variant: str) -> str:
     return f"{scenario}-{algo}-{variant}"
 
 
-def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial) -> int:
-    """Trains every missing program of ``settings`` (compiling the next program while one
-    trains); returns the number of programs trained. With several processes
+def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
+             jobs: list[Job] | None = None) -> int:
+    """Trains every missing program of ``settings`` (``jobs``: those programs, default the
+    tables' :func:`jobs_of`), compiling the next program while one trains; returns the
+    number of programs trained. With several processes
     (:mod:`ccrjax.run.distributed`) each trains its share of every program's runs and
     process 0 writes the cells."""
-    jobs = jobs_of(settings)
+    jobs = jobs_of(settings) if jobs is None else jobs
     # Several processes train the same programs in the same order: process 0's list.
     todo = [job for job in jobs if distributed.agree(job_cells(out, job, settings) is None)]
     seeds = settings.seeds

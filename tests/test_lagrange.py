@@ -78,6 +78,13 @@ def test_the_multiplier_stays_within_zero_and_the_cap_and_unwinds():
     assert high[-1] == pytest.approx(1.0)  # one step below the limit: 2 - 10 x 0.1
     low = run([0.0] * 10, 0.1, {**gains, "initial": 1.0})
     assert low[-1] == 0.0 and (np.diff(low) <= 0).all()
+    # With the proportional term the raw value exceeds the cap: the multiplier stops there.
+    pid = run([1.0] * 20, 0.1, {**gains, "kp": 1.0, "ema_p": 0.5})
+    assert pid.max() == pytest.approx(2.0)
+    # No wind-up below 0: after a long stretch under the limit, one step above it raises
+    # the multiplier at once (the integral was held at 0, not driven to -5).
+    back = run([0.0] * 50 + [1.0], 0.1, {**gains, "ki": 1.0, "cap": 100.0})
+    assert back[-1] == pytest.approx(0.9)
 
 
 def test_several_limits_train_side_by_side_under_vmap():

@@ -177,3 +177,23 @@ def test_the_protocols_multiplier_waits_for_the_end_of_the_random_warm_up():
                                                     eval_every=200),
                                 "turbulence", "maddpg", "lagrangian")
     assert quick.transform.warmup_episodes == 2  # 40 transitions, 20 per episode
+
+
+@pytest.mark.slow  # two iterations compiled
+def test_the_update_uses_the_multiplier_set_by_this_iterations_episodes():
+    """A multiplier driven from 0 to its cap by the first training episode trains the
+    learner exactly as a multiplier held at the cap from the start: the update weighs the
+    channels with the multiplier in force after the episode, not before it."""
+    config = dict(algo="iddpg", variant="lagrangian", **{**TINY, "learning_starts": 0})
+    jumping = Lagrangian(controller="ascent", ki=1e4, cost_limit=0.0, cap=100.0)
+    held = Lagrangian(controller="ascent", ki=0.0, cost_limit=0.0, cap=100.0, initial=100.0)
+    states = []
+    for transform in (jumping, held):
+        program = make_train(TrainConfig(transform=transform, **config))
+        state, _ = jax.jit(program.iteration)(program.init(jax.random.PRNGKey(4)))
+        states.append(state)
+    assert float(states[0].transform["multiplier"].multiplier) == 100.0  # the episode's danger
+    assert int(states[0].updates) > 0
+    for a, b in zip(jax.tree_util.tree_leaves(states[0].learner),
+                    jax.tree_util.tree_leaves(states[1].learner), strict=True):
+        np.testing.assert_array_equal(a, b)

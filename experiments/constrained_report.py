@@ -1,0 +1,183 @@
+"""``constrained.json``, ``constrained.md`` and the multiplier figures of the constrained
+baseline's tables (:mod:`experiments.constrained`), from its Lagrangian cells and the
+committed cells of the other variants and searches (:mod:`experiments.constrained_analysis`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccrjax.run.stats import format_mean_ci, mean_ci
+from ccrjax.viz.plots import Curves, draw_curves
+from experiments import protocol
+from experiments.constrained_analysis import (
+    BASELINES,
+    PAIRS,
+    aggregates,
+    hypotheses,
+    pair_rows,
+    selection_at,
+)
+from experiments.ledger import read_json
+from experiments.tables_grid import LEARNER_NAMES, SCENARIO_NAMES, cell_stem
+
+NAMES = {"plain": "plain", "pessimistic": "pessimistic", "ccr": "CCR",
+         "lagrangian": "Lagrangian"}
+PARAMETERS = {"ccr": "lam", "pessimistic": "penalty", "lagrangian": "cost_limit"}
+
+
+def baseline_cells(tables: Path, seeds: tuple[int, ...]) -> dict[tuple[str, str, str], dict]:
+    """The plain, pessimistic and CCR cells of the tables in ``tables`` (their seeds must be
+    ``seeds``); ``ValueError`` naming what is missing."""
+    cells = {}
+    for scenario, algo in PAIRS:
+        for variant in BASELINES:
+            path = tables / "cells" / f"{cell_stem(scenario, algo, variant)}.json"
+            cell = read_json(path)
+            if not cell:
+                raise ValueError(f"no cell at {path}")
+            if tuple(cell["seeds"]) != tuple(seeds):
+                raise ValueError(f"{path} holds seeds {cell['seeds']}, not {list(seeds)}")
+            cells[(scenario, algo, variant)] = cell
+    return cells
+
+
+def search_cells(folder: Path) -> dict[tuple[str, str], dict] | None:
+    """A search's 9 cells, or ``None`` if any is missing."""
+    cells = {pair: read_json(folder / "cells" / f"{pair[0]}-{pair[1]}.json") for pair in PAIRS}
+    return cells if all(cells.values()) else None
+
+
+def selections(searches: Path, lagrangian_search: Path, steps: int) -> dict[str, Any]:
+    """The rule at ``steps`` for each search (what is missing said in words)."""
+    found = {}
+    for variant, folder in (("ccr", searches / "ccr"), ("pessimistic", searches / "pessimistic"),
+                            ("lagrangian", lagrangian_search)):
+        cells = search_cells(folder)
+        found[variant] = (selection_at(cells, steps) if cells else
+                          {"missing": f"{folder} lacks some of the 9 pairs' cells"})
+    return found
+
+
+def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: float, out: Path,
+                       quick: bool) -> list[Path]:
+    """Per scenario, the multiplier's path, its input and the evaluated danger over
+    training, one curve per learner (mean, 95% band, seeds faint), the limit dashed."""
+    paths = []
+    metrics = ("lagrange_multiplier", "lagrange_cost", "danger_frequency")
+    for scenario in sorted({s for s, _ in lagrangian}):
+        curves = Curves()
+        for (s, algo), cell in lagrangian.items():
+            if s == scenario:
+                history = cell["history"]
+                curves.add(LEARNER_NAMES[algo], np.asarray(history["env_steps"][0]),
+                           {m: np.asarray(history[m]) for m in metrics})
+        path = out / f"multiplier_{scenario}.png"
+        title = (f"{protocol.QUICK_FIGURE if quick else ''}{SCENARIO_NAMES[scenario]}: the "
+                 f"Lagrangian's multiplier, cost limit {cost_limit:g}")
+        draw_curves(curves, path, metrics=metrics, title=title,
+                    lines={m: (cost_limit, "cost limit") for m in metrics[1:]})
+        paths.append(path)
+    return paths
+
+
+def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
+           searches: Path, lagrangian_search: Path, sources: dict[str, str], out: Path,
+           invocations: list[dict[str, Any]]) -> tuple[dict, str, list[Path]]:
+    """The result, its markdown and the figures written into ``out``."""
+    steps = settings.budget(PAIRS[0][1])
+    cells = baseline_cells(tables, settings.seeds)
+    cells.update({(s, a, "lagrangian"): cell for (s, a), cell in lagrangian.items()})
+    rows = pair_rows(cells, steps, settings.cost_limit)
+    used = {variant: cells[(*PAIRS[0], variant)]["params"] for variant in ("ccr", "pessimistic")}
+    result = {
+        "settings": {"steps": steps, "seeds": list(settings.seeds),
+                     "cost_limit": settings.cost_limit, "quick": settings.quick},
+        "sources": {**sources, "tables": str(tables), "searches": str(searches),
+                    "lagrangian_search": str(lagrangian_search)},
+        "invocations": invocations,
+        "selections_at_budget": selections(searches, lagrangian_search, steps),
+        "tables_values": {v: {k: sorted(set(x)) for k, x in p.items()} for v, p in used.items()},
+        "pairs": {f"{s}-{a}": row for (s, a), row in rows.items()},
+        "aggregates": aggregates(rows),
+        "hypotheses": hypotheses(rows, settings.cost_limit),
+        "commits": sorted({cell["commit"] for cell in lagrangian.values()}),
+        "devices": sorted({cell["device"] for cell in lagrangian.values()}),
+    }
+    figures = multiplier_figures(lagrangian, settings.cost_limit, out, settings.quick)
+    return result, markdown(result), figures
+
+
+def _cell(values: list[float]) -> str:
+    return format_mean_ci(mean_ci(values, bounds=(0.0, 1.0)), percent=True)
+
+
+def _mark(test: dict[str, Any]) -> str:
+    return "" if not test["significant"] else (" (lower*)" if test["difference"] < 0
+                                               else " (higher*)")
+
+
+def markdown(result: dict[str, Any]) -> str:
+    settings = result["settings"]
+    limit = settings["cost_limit"]
+    lines = ["# The constrained baseline beside plain, pessimistic and CCR", ""]
+    if settings["quick"]:
+        lines += [protocol.quick_note(), ""]
+    lines += [
+        f"Every variant at {settings['steps']:,} environment steps per run, the tables' seeds "
+        f"{settings['seeds']}; the Lagrangian at cost limit **{limit:g}** "
+        f"({result['sources']['cost_limit']}); the other variants are their runs in "
+        f"{result['sources']['tables']} evaluated at this budget (docs/protocol.md, amendment "
+        f"of 2026-12-02). Mean and 95% interval over seeds; `*` marks a Welch test of the "
+        "Lagrangian against that variant with p < 0.05. Training danger: the share of "
+        "robot-steps in danger from the start of learning to the budget.",
+        "", "## The three searches' choices at this budget", "",
+        "| searched | choice at this budget | the tables used |", "|---|---|---|"]
+    for variant, chosen in result["selections_at_budget"].items():
+        used = result["tables_values"].get(variant, {}).get(PARAMETERS[variant], ["-"])
+        text = chosen.get("missing") or (f"{chosen['value']:g}" + (" (fallback)" if
+                                                                   chosen["fallback"] else ""))
+        lines.append(f"| {PARAMETERS[variant]} ({NAMES[variant]}) | {text} | "
+                     f"{', '.join(f'{v:g}' if isinstance(v, float) else str(v) for v in used)} |")
+    for key, row in result["pairs"].items():
+        scenario, algo = key.split("-")
+        met = sum(row["meets_limit"])
+        lines += ["", f"## {SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}", "",
+                  f"Lagrangian seeds meeting the limit (final danger at most {limit:g}): "
+                  f"{met} of {len(row['meets_limit'])}.", "",
+                  "| variant | danger | success | training danger |", "|---|---|---|---|"]
+        for variant, values in row["variants"].items():
+            marks = ({m: _mark(row["welch"][variant][m]) for m in row["welch"][variant]}
+                     if variant in row["welch"] else {})
+            lines.append(f"| {NAMES[variant]} | {_cell(values['danger_frequency'])}"
+                         f"{marks.get('danger_frequency', '')} | "
+                         f"{_cell(values['success_rate'])}{marks.get('success_rate', '')} | "
+                         f"{_cell(values['training_danger'])}"
+                         f"{marks.get('training_danger', '')} |")
+    lines += ["", "## Over the 9 pairs (rliable)", "",
+              "| metric | " + " | ".join(NAMES[v] for v in (*BASELINES, "lagrangian"))
+              + " | P(Lagrangian better than plain / pessimistic / CCR) | P(CCR better than "
+              "Lagrangian) |", "|---|---|---|---|---|---|---|"]
+    for metric, found in result["aggregates"].items():
+        iqm_text = " | ".join(f"{found['iqm'][v]['iqm']:.1%}" for v in
+                              (*BASELINES, "lagrangian"))
+        improvement = found["probability_of_improvement"]
+        over = " / ".join(f"{improvement[f'lagrangian_over_{b}']['probability']:.2f}"
+                          for b in BASELINES)
+        lines.append(f"| {metric.replace('_', ' ')} (IQM) | {iqm_text} | {over} | "
+                     f"{improvement['ccr_over_lagrangian']['probability']:.2f} |")
+    found = result["hypotheses"]
+    lines += ["", "## The amendment's hypotheses", "",
+              f"H-L1: plain's mean danger is above the limit in "
+              f"{len(found['pairs_plain_above_limit'])} pairs; the Lagrangian meets it within "
+              f"its seeds' spread in {found['limit_met_within_spread']} of them: "
+              f"{'holds' if found['h_l1_holds'] else 'does not hold'}.",
+              "H-L2 (against pessimistic, pairs with the difference significant): " + "; ".join(
+                  f"{m.replace('_', ' ')}: lower in {v['significantly_lower']}, higher in "
+                  f"{v['significantly_higher']}" for m, v in found["versus_pessimistic"].items())
+              + ".", "", "Made at " + ", ".join(f"`{c}`" for c in result["commits"]) + " on "
+              + ", ".join(result["devices"]) + "."]
+    return "\n".join(lines) + "\n"
