@@ -181,3 +181,42 @@ def markdown(result: dict[str, Any]) -> str:
               + ".", "", "Made at " + ", ".join(f"`{c}`" for c in result["commits"]) + " on "
               + ", ".join(result["devices"]) + "."]
     return "\n".join(lines) + "\n"
+
+
+def results_section(folder: str, result: dict[str, Any]) -> list[str]:
+    """The results report's section on the constrained baseline (``result``: a
+    ``constrained.json`` in ``experiments/results/<folder>``)."""
+    settings = result["settings"]
+    chosen = result["selections_at_budget"]
+    choices = "; ".join(
+        f"{PARAMETERS[v]} {c['value']:g}" if "value" in c else f"{PARAMETERS[v]}: {c['missing']}"
+        for v, c in chosen.items())
+    danger = result["aggregates"]["danger_frequency"]
+    success = result["aggregates"]["success_rate"]
+    training = result["aggregates"]["training_danger"]
+    found = result["hypotheses"]
+    met = {key: f"{sum(row['meets_limit'])}/{len(row['meets_limit'])}"
+           for key, row in result["pairs"].items()}
+    lines = [f"## The constrained baseline (Lagrangian) at {settings['steps']:,} steps", "",
+             f"[`{folder}/constrained.md`]({folder}/constrained.md) (docs/protocol.md, "
+             "amendment of 2026-12-02): the Lagrangian at cost limit "
+             f"{settings['cost_limit']:g} beside plain, pessimistic and CCR read at the same "
+             f"budget from their 6M runs, the tables' seeds. The rule at this budget chose: "
+             f"{choices}.", "",
+             "| over the 9 pairs (IQM) | plain | pessimistic | CCR | Lagrangian |",
+             "|---|---|---|---|---|"]
+    for name, found_metric in (("danger", danger), ("success", success),
+                               ("danger in training", training)):
+        lines.append(f"| {name} | " + " | ".join(
+            f"{found_metric['iqm'][v]['iqm']:.1%}" for v in (*BASELINES, "lagrangian")) + " |")
+    improvement = danger["probability_of_improvement"]
+    lines += ["", f"P(the Lagrangian is less dangerous than pessimistic) = "
+              f"{improvement['lagrangian_over_pessimistic']['probability']:.2f}; P(CCR less "
+              f"dangerous than the Lagrangian) = "
+              f"{improvement['ccr_over_lagrangian']['probability']:.2f}. Seeds meeting the "
+              "limit per pair: " + ", ".join(f"{k} {v}" for k, v in met.items()) + ". H-L1 "
+              f"{'holds' if found['h_l1_holds'] else 'does not hold'} "
+              f"({found['limit_met_within_spread']} of "
+              f"{len(found['pairs_plain_above_limit'])} pairs where plain is above the limit).",
+              ""]
+    return lines

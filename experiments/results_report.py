@@ -24,6 +24,7 @@ from pathlib import Path
 
 from ccrjax import cli
 from ccrjax.run.folder import write_atomic
+from experiments.constrained_report import results_section
 from experiments.ledger import RESULTS, read_json
 from experiments.results_sections import (
     STATIC_EXPLANATIONS,
@@ -40,6 +41,7 @@ from experiments.results_sections import (
 PROG = "python -m experiments.results_report"
 TABLES = (("tables", "3M"), ("tables_6m", "6M"))  # folder, budget label
 SEARCHES = (("search", "3M"), ("search_6m", "6M"))
+CONSTRAINED = "constrained"  # experiments/constrained.py's folder
 BUDGETS = (("budgets", "the budget seeds 200-202"), ("longer_budget", "the tables' seeds"))
 
 
@@ -53,6 +55,7 @@ def report(results: Path = RESULTS) -> str:
     budgets = {folder: (what, r) for folder, what in BUDGETS
                if (r := read_json(results / folder / "budgets.json"))}
     regimes = read_json(results / "regimes" / "regimes.json")
+    constrained = read_json(results / CONSTRAINED / "constrained.json")
     lines = [
         "# Results", "",
         "What ccrjax has measured: the paper's Tables I and II re-run under the "
@@ -72,6 +75,8 @@ def report(results: Path = RESULTS) -> str:
             lines += tables_section(folder, label, tables[label])
     if searches:
         lines += searches_section(searches)
+    if constrained:
+        lines += results_section(CONSTRAINED, constrained)
     if tables:
         lines += plain_section(tables)
     if budgets:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import constrained
+from experiments import constrained, results_report
 from experiments.constrained_analysis import (
     PAIRS,
     hypotheses,
@@ -167,3 +167,25 @@ def test_the_command_trains_the_nine_cells_and_writes_the_tables(tmp_path, capsy
     assert constrained.main(argv) == 0
     assert "9 of 9 programs already done" in capsys.readouterr().err
     assert (out / "constrained.md").read_text() == text
+
+
+def test_the_results_report_says_what_the_constrained_tables_show(tmp_path):
+    """A ``constrained/constrained.json`` in the results folder gives the report its section
+    (IQMs, the choices at the budget, seeds meeting the limit); without it there is none."""
+    tables, own = tmp_path / "tables", tmp_path / "own"
+    write_cells(tables, {f"{s}-{a}-{v}": table_cell(s, a, v) for s, a in PAIRS
+                         for v in ("plain", "pessimistic", "ccr")})
+    write_cells(own, {f"{s}-{a}": search_cell(s, a, [0.0, 0.05], {0.0: 0.3, 0.05: 0.05},
+                                               {0.0: 0.9, 0.05: 0.88}) for s, a in PAIRS})
+    lagrangian = {(s, a): table_cell(s, a, "lagrangian") for s, a in PAIRS}
+    settings = constrained.Settings(cost_limit=0.05, seeds=SEEDS, steps=BUDGET, eval_every=200)
+    results = tmp_path / "results"
+    (results / "constrained").mkdir(parents=True)
+    assert "constrained baseline" not in results_report.report(results)
+    result, _, _ = report(lagrangian, settings, tables, tmp_path / "none", own, {},
+                          results / "constrained", [])
+    (results / "constrained" / "constrained.json").write_text(json.dumps(result))
+    text = results_report.report(results)
+    assert "## The constrained baseline (Lagrangian) at 400 steps" in text
+    assert "cost_limit 0.05" in text and "hidden_obstacle-iddpg 2/3" in text
+    assert "| danger | 30.0% | 2.0% | 28.0% | 5.0% |" in text
