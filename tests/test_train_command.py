@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import ccrjax
 from ccrjax import evaluate, terminal, train
 from ccrjax.run import session as sessions
 from ccrjax.run.checkpoint import Checkpoints
@@ -717,6 +718,10 @@ def test_a_lagrangian_run_records_its_multiplier_and_resumes_exactly(tmp_path, c
     summary = json.loads((straight / "summary.json").read_text())
     assert summary["per_seed"]["3"]["lagrange_multiplier"] == rows[-2]["lagrange_multiplier"]
     assert (straight / "curves.png").stat().st_size > 0
+    spec = train.RunSpec.from_dict(RunFolder(straight).read_config()["run"])
+    obs = jnp.zeros((5, spec.train.num_robots, make_train(spec.train).obs_size))
+    act = ccrjax.load_policy(straight, seed=3)  # the exported policy of a Lagrangian run
+    assert act(obs).shape == (5, spec.train.num_robots, 2)
 
 
 def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished_run, tmp_path):
