@@ -16,6 +16,7 @@ import pytest
 
 from ccrjax.agents.replay import add_episodes, init_replay, sample
 from ccrjax.agents.types import Transition
+from ccrjax.run.stats import mean_ci
 from ccrjax.run.sweep_grid import grid_params, search_grid
 from ccrjax.training import TrainConfig, make_train
 from ccrjax.training.program import channel_rewards
@@ -197,3 +198,23 @@ def test_the_update_uses_the_multiplier_set_by_this_iterations_episodes():
     for a, b in zip(jax.tree_util.tree_leaves(states[0].learner),
                     jax.tree_util.tree_leaves(states[1].learner), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.slow  # two programs of 3 seeds x 150,000 steps: about 3 minutes on 2 cores
+def test_a_trained_lagrangian_team_holds_its_danger_near_the_limit():
+    """In turbulence the plain IDDPG team crosses the turbulent area (danger about 0.4 at
+    150,000 steps); the Lagrangian team with a limit of 0.2 ends near the limit, within its
+    seeds' spread, far below plain."""
+    base = dict(algo="iddpg", scenario="turbulence", total_env_steps=150_000,
+                learning_starts=5_000, eval_every=37_500, eval_episodes=32)
+    keys = jnp.stack([jax.random.PRNGKey(seed) for seed in range(3)])
+    final = {}
+    for variant, transform in (("plain", None),
+                               ("lagrangian", Lagrangian(cost_limit=0.2, warmup_episodes=25))):
+        program = make_train(TrainConfig(variant=variant, transform=transform, **base))
+        _, history = jax.jit(jax.vmap(program.train))(keys, None)
+        final[variant] = np.asarray(history["danger_frequency"])[:, -1]
+    plain, constrained = (mean_ci(final[v], bounds=(0.0, 1.0)) for v in ("plain", "lagrangian"))
+    assert plain["ci_low"] > 0.3  # plain is far above the limit
+    assert constrained["ci_low"] <= 0.2 <= constrained["ci_high"]
+    assert constrained["mean"] < 0.7 * plain["mean"]
