@@ -170,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     lagrangian = {pair: cells[VARIANT] for pair, cells in found.items()}
     result, markdown, figures = report(lagrangian, whole, args.tables, args.searches,
-                                       args.lagrangian_search, sources, out, ledger.invocations)
+                                       args.lagrangian_search, sources, out, ledger.invocations,
+                                       resamples=200 if settings.quick else 2000)
     write_atomic(out / "constrained.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "constrained.md", markdown)
     print(markdown)

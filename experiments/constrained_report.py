@@ -86,8 +86,10 @@ def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: floa
 
 def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
            searches: Path, lagrangian_search: Path, sources: dict[str, str], out: Path,
-           invocations: list[dict[str, Any]]) -> tuple[dict, str, list[Path]]:
-    """The result, its markdown and the figures written into ``out``."""
+           invocations: list[dict[str, Any]], resamples: int = 2000
+           ) -> tuple[dict, str, list[Path]]:
+    """The result, its markdown and the figures written into ``out`` (``resamples``: the
+    bootstrap's, for rliable's intervals)."""
     steps = settings.budget(PAIRS[0][1])
     cells = baseline_cells(tables, settings.seeds)
     cells.update({(s, a, "lagrangian"): cell for (s, a), cell in lagrangian.items()})
@@ -102,7 +104,7 @@ def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
         "selections_at_budget": selections(searches, lagrangian_search, steps),
         "tables_values": {v: {k: sorted(set(x)) for k, x in p.items()} for v, p in used.items()},
         "pairs": {f"{s}-{a}": row for (s, a), row in rows.items()},
-        "aggregates": aggregates(rows),
+        "aggregates": aggregates(rows, resamples),
         "hypotheses": hypotheses(rows, settings.cost_limit),
         "commits": sorted({cell["commit"] for cell in lagrangian.values()}),
         "devices": sorted({cell["device"] for cell in lagrangian.values()}),
@@ -129,7 +131,7 @@ def markdown(result: dict[str, Any]) -> str:
     lines += [
         f"Every variant at {settings['steps']:,} environment steps per run, the tables' seeds "
         f"{settings['seeds']}; the Lagrangian at cost limit **{limit:g}** "
-        f"({result['sources']['cost_limit']}); the other variants are their runs in "
+        f"({result['sources'].get('cost_limit', 'given')}); the other variants are their runs in "
         f"{result['sources']['tables']} evaluated at this budget (docs/protocol.md, amendment "
         f"of 2026-12-02). Mean and 95% interval over seeds; `*` marks a Welch test of the "
         "Lagrangian against that variant with p < 0.05. Training danger: the share of "

@@ -117,7 +117,7 @@ def test_the_report_says_what_the_cells_hold(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     result, text, figures = report(lagrangian, settings, tables, searches, own,
-                                   {"cost_limit": "given"}, out, [])
+                                   {"cost_limit": "given"}, out, [], resamples=20)
     assert result["selections_at_budget"]["lagrangian"]["value"] == 0.05
     assert "lacks" in result["selections_at_budget"]["ccr"]["missing"]
     assert "cost limit **0.05**" in text and "2 of 3" in text
@@ -129,7 +129,7 @@ def test_the_report_says_what_the_cells_hold(tmp_path):
     write_cells(wrong, {f"{s}-{a}-{v}": {**table_cell(s, a, v), "seeds": [7, 8, 9]}
                         for s, a in PAIRS for v in ("plain", "pessimistic", "ccr")})
     with pytest.raises(ValueError, match="not \\[0, 1, 2\\]"):
-        report(lagrangian, settings, wrong, searches, own, {}, out, [])
+        report(lagrangian, settings, wrong, searches, own, {}, out, [], resamples=20)
 
 
 def test_the_command_needs_a_finished_search_or_a_limit(tmp_path, capsys):
@@ -182,8 +182,9 @@ def test_the_results_report_says_what_the_constrained_tables_show(tmp_path):
     results = tmp_path / "results"
     (results / "constrained").mkdir(parents=True)
     assert "constrained baseline" not in results_report.report(results)
-    result, _, _ = report(lagrangian, settings, tables, tmp_path / "none", own, {},
-                          results / "constrained", [])
+    result, _, _ = report(lagrangian, settings, tables, tmp_path / "none", own,
+                          {"cost_limit": "given on the command line"},
+                          results / "constrained", [], resamples=20)
     (results / "constrained" / "constrained.json").write_text(json.dumps(result))
     text = results_report.report(results)
     assert "## The constrained baseline (Lagrangian) at 400 steps" in text
