@@ -58,6 +58,11 @@ from ccrjax.transforms.ccr import CCR, CCRConfig, DangerFlags
 from ccrjax.transforms.lagrangian import Lagrangian
 
 PROG = TRAIN_COMMAND
+# The transforms' searched numbers, each an option of its own (not --<prefix>-<field>): the
+# option, the configuration class, its field and the option's converter.
+SHORTHANDS = (("--lam", CCRConfig, "lam", cli.non_negative_float),
+              ("--penalty", Pessimistic, "penalty", cli.non_negative_float),
+              ("--cost-limit", Lagrangian, "cost_limit", cli.float_in(0.0, 1.0)))
 # The configuration dataclasses whose fields are options, and the options' prefix
 # (--ddpg-gamma is DDPGConfig.gamma): errors name the option, not the field.
 # DangerFlags' comm_range is --ccr-comm-range too.
@@ -114,11 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
     for option, field, convert, extra in TRAIN_OPTIONS:
         extra = {key: value() if callable(value) else value for key, value in extra.items()}
         cli.add_field_option(run, option, DEFAULT_TRAIN, field, convert, **extra)
-    for option, owner, field, convert in (
-            ("--lam", CCRConfig(), "lam", cli.non_negative_float),
-            ("--penalty", Pessimistic(), "penalty", cli.non_negative_float),
-            ("--cost-limit", Lagrangian(), "cost_limit", cli.float_in(0.0, 1.0))):
-        cli.add_field_option(run, option, owner, field, convert)
+    for option, owner, field, convert in SHORTHANDS:
+        cli.add_field_option(run, option, owner(), field, convert)
     spec = RunSpec(train=DEFAULT_TRAIN)
     for option, field, convert in SPEC_OPTIONS[:2]:
         cli.add_field_option(run, option, spec, field, convert)
@@ -378,7 +380,9 @@ def _main(argv: list[str], stop: Stop) -> int:
         cli.fail(PROG, str(error))
     except ValueError as error:  # a configuration value the dataclasses refuse
         options = [o for action in parser._actions for o in action.option_strings]
-        message = str(error).replace("Lagrangian.cost_limit", "--cost-limit")
+        message = str(error)
+        for option, owner, field, _ in SHORTHANDS:  # Lagrangian.cost_limit is --cost-limit
+            message = message.replace(f"{owner.__name__}.{field}", option)
         cli.fail(PROG, cli.in_option_terms(message, option_prefixes(), options))
 
 

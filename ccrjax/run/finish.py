@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from ccrjax.cli import UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
-from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, folder_bytes, summary_table
+from ccrjax.run.folder import RunFolder, fingerprint, folder_bytes, own_columns, summary_table
 from ccrjax.run.policy import POLICY_DIR, POLICY_RECORD, export_policy
 from ccrjax.run.session import drop_finished_buffer
 from ccrjax.run.spec import RunSpec
@@ -37,7 +37,7 @@ def finish(folder: Any, program: Any, state: Any, seeds: Sequence[int],
     final_rows = [row for row in history if row["env_steps"] == final_steps]
     summary = folder.write_summary(final_rows, {"wall_time_s": wall})
     curves = Curves()
-    own = [name for name in history[-1] if name not in CSV_COLUMNS]  # the transform's numbers
+    own = own_columns(history[-1])  # the transform's numbers
     metrics = (*CURVE_METRICS, *own)
     steps, values = curves_from_rows(history, metrics)
     config = program.config

@@ -177,11 +177,15 @@ def format_value(value: Any) -> str:
     return repr(float(value))
 
 
+def own_columns(row: dict[str, Any]) -> list[str]:
+    """The transform's own numbers a ``metrics.csv`` row holds beyond :data:`CSV_COLUMNS`
+    (a Lagrange multiplier's path), in the order the transform gives them."""
+    return [name for name in row if name not in CSV_COLUMNS]
+
+
 def csv_columns(rows: Sequence[dict[str, Any]]) -> tuple[str, ...]:
-    """:data:`CSV_COLUMNS`, then the transform's own numbers the rows hold (a Lagrange
-    multiplier's path), in the order the transform gives them."""
-    extra = [name for name in rows[0] if name not in CSV_COLUMNS] if rows else []
-    return (*CSV_COLUMNS, *extra)
+    """:data:`CSV_COLUMNS`, then the rows' :func:`own_columns`."""
+    return (*CSV_COLUMNS, *(own_columns(rows[0]) if rows else []))
 
 
 def csv_text(rows: Sequence[dict[str, Any]], header: bool = True) -> str:
@@ -291,7 +295,7 @@ class RunFolder:
     def write_summary(self, final_rows: Sequence[dict[str, Any]], extra: dict[str, Any]) -> dict:
         """``summary.json``: the final evaluation per seed, mean and 95% interval per metric
         (the transform's own numbers too, such as the final Lagrange multiplier)."""
-        metrics = csv_columns(final_rows)[len(CSV_COLUMNS) - len(POINT_METRICS):]
+        metrics = (*POINT_METRICS, *own_columns(final_rows[0]))
         summary = {
             "env_steps_per_seed": final_rows[0]["env_steps"],
             "seeds": [row["seed"] for row in final_rows],

@@ -24,7 +24,6 @@ from ccrjax.agents.replay import grow
 from ccrjax.cli import UsageError
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints, report_skipped
 from ccrjax.run.folder import (
-    CSV_COLUMNS,
     EVAL_METRICS,
     POINT_METRICS,
     TRAIN_COMMAND,
@@ -32,6 +31,7 @@ from ccrjax.run.folder import (
     RunFolder,
     environment_record,
     fingerprint,
+    own_columns,
 )
 from ccrjax.run.spec import RunSpec
 from ccrjax.training import make_train
@@ -314,7 +314,6 @@ def eval_scalars(row: dict[str, Any]) -> dict[str, float]:
     scalars = {f"eval/{name}": row[name] for name in EVAL_METRICS}
     for name in TRAINING_COUNTS:
         scalars[f"train/{name}"] = row[name]
-    for name in row:  # the transform's own numbers
-        if name not in CSV_COLUMNS:
-            scalars[f"transform/{name}"] = row[name]
+    for name in own_columns(row):  # the transform's own numbers
+        scalars[f"transform/{name}"] = row[name]
     return scalars

@@ -66,7 +66,6 @@ def first_nonfinite(nonfinite_iteration: Any, seeds: Sequence[int]) -> NonFinite
     return NonFinite(iteration=int(bad[index]), seed=int(seeds[index]))
 
 
-
 def channel_rewards(batch: Transition, weights: tuple[jax.Array, jax.Array]) -> Transition:
     """``batch`` with the reward the learner trains on, ``a reward + b cost``, from the
     stored channels and the weights ``(a, b)`` in force at this update (whatever they were
@@ -75,6 +74,7 @@ def channel_rewards(batch: Transition, weights: tuple[jax.Array, jax.Array]) -> 
     reward_weight, cost_weight = weights
     return batch.replace(reward=reward_weight * batch.reward + cost_weight * batch.cost,
                          cost=None)
+
 
 @struct.dataclass
 class TrainState:
