@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from ccrjax import cli
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.envs.scenarios import SCENARIOS
-from ccrjax.registry import transform_names
+from ccrjax.registry import learner_names, transform_names
 from ccrjax.run.folder import git_commit
 from ccrjax.training import ALGOS, TrainConfig, make_train
 
@@ -78,6 +78,25 @@ def compiled_run(algo: str, variant: str, scenario: str, iterations: int, seeds:
     return program, config, run, state, time.perf_counter() - start
 
 
+def update_setting_text(config: TrainConfig) -> str:
+    """How a learner updates: ``GxB/S``, G updates of batch B every S environment steps (an
+    on-policy learner's: epochs x minibatches over each rollout of S team-steps)."""
+    settings = config.resolved_learner
+    if config.on_policy:
+        return f"{settings.epochs}x{settings.minibatches}mb/{config.steps_per_iteration}"
+    return f"{settings.gradient_steps}x{settings.batch_size}/{settings.update_every}"
+
+
+def update_flops(program) -> float:
+    """Matrix-multiply FLOPs of one learner update (an on-policy learner's: the whole
+    rollout's, all epochs)."""
+    config = program.config
+    if config.on_policy:
+        return program.learner.flops_per_update(config.num_robots, program.obs_size,
+                                                config.steps_per_iteration)
+    return program.learner.flops_per_update(config.num_robots, program.obs_size)
+
+
 def measure(algo: str, variants: list[str], scenario: str, iterations: int, repeats: int,
             seeds: int = 1, learner: MAACConfig | None = None):
     """One row per variant; variants are timed in turns (ABAB...), so that the machine's
@@ -104,22 +123,19 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
         program, config, _, _, compile_s = setups[variant]
         median = statistics.median(times[variant])
         updates = iterations * config.updates_per_iteration
-        flops = program.learner.flops_per_update(config.num_robots, program.obs_size)
-        settings = config.resolved_learner
         rows.append({
             "algo": algo,
             "variant": variant,
-            # updates per round x batch, every update_every environment steps
-            "updates": f"{settings.gradient_steps}x{settings.batch_size}"
-                       f"/{settings.update_every}",
+            "updates": update_setting_text(config),
+            "num_envs": config.num_envs,
             "scenario": scenario,
             "seeds": seeds,  # trained at once; the rates below are per seed
             "env_steps_per_s": iterations * config.steps_per_iteration / median,
             "env_steps_per_s_all_seeds": seeds * iterations * config.steps_per_iteration
             / median,
             "updates_per_s": updates / median,
-            "gflop_per_update": flops / 1e9,
-            "gflop_per_s": seeds * flops * updates / median / 1e9,
+            "gflop_per_update": update_flops(program) / 1e9,
+            "gflop_per_s": seeds * update_flops(program) * updates / median / 1e9,
             f"time_vs_{first}": statistics.median(ratios),
             f"time_vs_{first}_quartiles": [quartiles[0], quartiles[2]],
             "median_s": median,
@@ -135,8 +151,9 @@ def measure(algo: str, variants: list[str], scenario: str, iterations: int, repe
 def main(argv: list[str] | None = None) -> int:
     parser = cli.Parser(prog="python benchmarks/train_throughput.py",
                         description=__doc__.split("\n")[0])
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
-                        help="learners to time (default: all three)")
+    parser.add_argument("--algos", nargs="+", choices=learner_names(),
+                        default=[*ALGOS, "ippo", "mappo"],
+                        help="learners to time (default: the paper's three, IPPO and MAPPO)")
     parser.add_argument("--variants", nargs="+", choices=transform_names(), default=["plain"],
                         help="variants to time, in turns (default: plain); the first is the "
                         "others' reference")
@@ -199,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{row['time_vs_' + first + '_quartiles'][0]:6.3f}-"
                 f"{row['time_vs_' + first + '_quartiles'][1]:.3f}"
             )
-        print("'updates': updates per round x batch / environment steps between rounds")
+        print("'updates': updates per round x batch / environment steps between rounds; "
+              "on-policy: epochs x minibatches / team-steps per rollout (one update)")
         print(f"median of {args.repeats} runs of {args.iterations} iterations after compilation, "
               f"variants timed in turns; 'time vs {first}': median (and quartiles) of each "
               "round's time over the first variant's in the same round")

@@ -43,6 +43,7 @@ import numpy as np
 
 from ccrjax import cli
 from ccrjax.agents.ddpg import DDPGConfig
+from ccrjax.agents.ppo import PPOConfig
 from ccrjax.cli import UsageError
 from ccrjax.envs.scenarios import SCENARIOS, Layout
 from ccrjax.registry import learner_entry, learner_names, transform_entry, transform_names
@@ -86,7 +87,9 @@ TRAIN_OPTIONS: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
     ("--variant", "variant", None, {"choices": transform_names}),
     ("--steps", "total_env_steps", cli.positive_int,
      {"shown": lambda: ", ".join(f"{v:,} for {k}" for k, v in default_budgets().items())}),
-    ("--num-envs", "num_envs", cli.int_in(1, 65536), {}),
+    ("--num-envs", "num_envs", cli.int_in(1, 65536),
+     {"shown": lambda: ", ".join(f"{learner_entry(name).default_num_envs} for {name}"
+                                 for name in learner_names())}),
     ("--robots", "num_robots", cli.int_in(2, 64), {}),
     ("--episode-length", "episode_length", cli.int_in(1, 10_000), {}),
     ("--eval-every", "eval_every", cli.positive_int, {}),
@@ -108,9 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = cli.Parser(
         prog=PROG,
-        description="Train a robot team (IDDPG, MADDPG or MAAC; plain, pessimistic, CCR or "
-        "a Lagrangian cost constraint) on one emergency scenario, all seeds at once, into a "
-        "run folder.",
+        description="Train a robot team (IDDPG, MADDPG, MAAC, IPPO or MAPPO; plain, pessimistic, "
+        "CCR or a Lagrangian cost constraint) on one emergency scenario, all seeds at once, "
+        "into a run folder.",
         epilog="Every option left out keeps its default; with --resume, the run's own "
         "configuration (config.json) is used and options that contradict it are refused.",
     )
@@ -147,8 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
     for prefix, (config_type, names) in learner_option_groups().items():
         cli.add_dataclass_options(parser, config_type, prefix,
                                   f"{' / '.join(n.upper() for n in names)} hyperparameters",
-                                  exclude=("centralised_critic",) if config_type is DDPGConfig
-                                  else ())
+                                  # the learner's name says it (maddpg / iddpg, mappo / ippo)
+                                  exclude=("centralised_critic",) if config_type in (
+                                      DDPGConfig, PPOConfig) else ())
     cli.add_dataclass_options(parser, CCRConfig, OPTION_PREFIXES["CCRConfig"],
                               "CCR parameters (ccr and its parts ccr_scores, ccr_reward, "
                               "ccr_perfect; --ccr-comm-range also danger_flags)",
@@ -246,9 +250,10 @@ def resolve(args: argparse.Namespace, base: RunSpec | None) -> RunSpec:
               if getattr(args, field) is not None}
     algo = fields.get("algo", train.algo)
     variant = fields.get("variant", train.variant)
-    if algo != train.algo:  # another learner: its own defaults and budget
+    if algo != train.algo:  # another learner: its own defaults, budget and environments
         fields["learner"] = None
         fields.setdefault("total_env_steps", None)
+        fields.setdefault("num_envs", None)
     if variant != train.variant:
         fields["transform"] = None
 

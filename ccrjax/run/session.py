@@ -302,7 +302,8 @@ def close(session: Session, keep_buffer: bool) -> list[int]:
     checkpoints = session.checkpoints
     checkpoints.wait()
     saved = checkpoints.steps()
-    if saved and saved[-1] >= session.total_steps and not keep_buffer:
+    replays = not session.spec.train.on_policy  # an on-policy learner's buffer is empty
+    if saved and saved[-1] >= session.total_steps and not keep_buffer and replays:
         drop_finished_buffer(checkpoints, saved[-1])
     checkpoints.close()
     session.folder.close_tensorboard()

@@ -38,7 +38,8 @@ class TrainConfig:
     ``algo`` and ``variant`` name the learner and the transform; ``learner`` and
     ``transform`` hold their parameters (``None``: that learner's or variant's defaults,
     :attr:`resolved_learner` and :attr:`resolved_transform`). Sizes the paper leaves open are
-    chosen here and documented in the README: 8 training environments per seed, episodes of
+    chosen here and documented in the README: 8 training environments per seed (IPPO and MAPPO
+    128: :attr:`num_envs`), episodes of
     25 steps (the MPE's), and the environment-step budget per seed (:attr:`budget`; every
     environment step of every training environment counts). Validated when built, without
     building an environment; nothing is rewritten.
@@ -56,7 +57,9 @@ class TrainConfig:
     learner: Any = None
     num_robots: int = 5  # team size
     episode_length: int = 25  # steps per episode
-    num_envs: int = 8  # training environments per seed
+    # training environments per seed; None: the learner's default (8; IPPO and MAPPO 128),
+    # filled in when the configuration is built, so the field always holds a number.
+    num_envs: int | None = None
     total_env_steps: int | None = None  # environment steps per seed; None: the learner's default
     eval_every: int = 20_000  # environment steps per seed between evaluations
     eval_episodes: int = 64  # fresh episodes per evaluation and seed
@@ -69,6 +72,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         learner_type = learner_entry(self.algo).config_type  # unknown names: ValueError
+        if self.num_envs is None:
+            object.__setattr__(self, "num_envs", learner_entry(self.algo).default_num_envs)
         if self.scenario not in SCENARIOS:
             raise ValueError(f"scenario must be one of {list(SCENARIOS)}, got {self.scenario!r}")
         transform_type = transform_entry(self.variant).type
@@ -83,14 +88,19 @@ class TrainConfig:
         for name in ("num_envs", "eval_every", "eval_episodes"):
             check_positive_int("TrainConfig", name, getattr(self, name))
         check_int("TrainConfig", "learning_starts", self.learning_starts, 0)
+        rollout_problem = getattr(self.resolved_learner, "rollout_problem", None)
+        problem = rollout_problem and rollout_problem(self.num_envs, self.episode_length)
+        if problem:  # an on-policy learner's minibatches must cut the rollout evenly
+            raise ValueError(problem)
         scenario = make_scenario(self.scenario, **self.scenario_params)  # checks its params
         check_team(scenario, self.num_robots, self.episode_length, layout=self.layout)
         if self.budget < self.min_total_env_steps:
+            why = ("one rollout of every training environment" if self.on_policy else
+                   f"learning_starts {self.learning_starts:,} transitions")
             raise ValueError(
                 f"total_env_steps (--steps) {self.budget:,} ends before learning "
                 f"starts: at least {self.min_total_env_steps:,} environment steps are needed "
-                f"(learning_starts {self.learning_starts:,} transitions, collected "
-                f"{self.steps_per_iteration:,} per iteration)"
+                f"({why}, collected {self.steps_per_iteration:,} per iteration)"
             )
 
     @property
@@ -171,8 +181,17 @@ class TrainConfig:
                 "notes": notes}
 
     @property
+    def on_policy(self) -> bool:
+        """Whether the learner learns from each iteration's rollout (IPPO, MAPPO) instead
+        of a replay buffer."""
+        return learner_entry(self.algo).on_policy
+
+    @property
     def updates_per_iteration(self) -> int:
-        """``gradient_steps`` updates every ``update_every`` environment steps (at least 1)."""
+        """``gradient_steps`` updates every ``update_every`` environment steps (at least 1);
+        an on-policy learner's one update per rollout (its epochs are inside it)."""
+        if self.on_policy:
+            return 1
         learner = self.resolved_learner
         return max(
             1, round(self.steps_per_iteration * learner.gradient_steps / learner.update_every)
@@ -181,20 +200,25 @@ class TrainConfig:
     @property
     def replay_capacity(self) -> int:
         """The learner's buffer size, a multiple of one iteration's transitions, and no
-        larger than all the transitions the run will ever collect."""
+        larger than all the transitions the run will ever collect; an on-policy learner
+        replays nothing (one episode's slot keeps the training state's structure)."""
+        if self.on_policy:
+            return self.episode_length
         collected = self.num_iterations * self.steps_per_iteration
         wanted = min(self.resolved_learner.buffer_size, collected)
         return replay_capacity(wanted, self.steps_per_iteration)
 
     @property
     def learning_starts_transitions(self) -> int:
-        return self.learning_starts
+        """Transitions collected before the first update: ``learning_starts``; 0 for an
+        on-policy learner, which learns from its first rollout."""
+        return 0 if self.on_policy else self.learning_starts
 
     @property
     def min_total_env_steps(self) -> int:
         """The smallest budget that reaches the first learning iteration: the first whole
         iteration after which the buffer holds ``learning_starts`` transitions."""
-        first = max(1, math.ceil(self.learning_starts / self.steps_per_iteration))
+        first = max(1, math.ceil(self.learning_starts_transitions / self.steps_per_iteration))
         return first * self.steps_per_iteration
 
 
@@ -235,7 +259,8 @@ def config_from_dict(data: dict[str, Any]) -> TrainConfig:
 def make_env(config: TrainConfig, num_envs: int) -> EmergencyEnv:
     """``num_envs`` environments of the run's scenario, team, episode length and layout, in
     the learner's action space (a discrete learner's ``action_set``, if its config has one)."""
-    discrete = learner_entry(config.algo).discrete_actions
+    discrete = (learner_entry(config.algo).discrete_actions
+                or getattr(config.resolved_learner, "discrete", False))
     return EmergencyEnv(
         config.scenario,
         num_robots=config.num_robots,

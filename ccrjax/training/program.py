@@ -165,12 +165,19 @@ class TrainProgram:
         transform_state, episode = run_episode(
             self.env, self.transform, state.transform, explore, self.learner.discrete, rollout_key
         )
-        buffer = add_episodes(state.buffer, episode.transitions)
-
         channels = getattr(self.transform, "reward_channels", False)
         # The weights of the reward channels in force now (a Lagrange multiplier just
         # updated from this iteration's episodes), whenever the transitions were stored.
         weights = self.transform.reward_weights(transform_state) if channels else None
+        # An on-policy learner learns from this rollout alone; the buffer stays empty.
+        buffer = (state.buffer if config.on_policy
+                  else add_episodes(state.buffer, episode.transitions))
+
+        def learn_from_rollout(learner_state):
+            rollout = episode.transitions
+            if channels:
+                rollout = channel_rewards(rollout, weights)
+            return self.learner.update(learner_state, rollout, update_key)
 
         def do_updates(learner_state):
             def one_update(learner_state, key):
@@ -195,9 +202,12 @@ class TrainProgram:
             )
 
         learning = buffer.size >= config.learning_starts_transitions
-        learner_state, update_metrics = jax.lax.cond(
-            learning, do_updates, skip_updates, state.learner
-        )
+        if config.on_policy:
+            learner_state, update_metrics = learn_from_rollout(state.learner)
+        else:
+            learner_state, update_metrics = jax.lax.cond(
+                learning, do_updates, skip_updates, state.learner
+            )
         finite = all_finite(learner_state)
         if channels:  # a multiplier gone non-finite stops the run as a non-finite loss does
             finite = finite & all_finite(weights)
