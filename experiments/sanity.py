@@ -109,16 +109,19 @@ def main(argv: list[str] | None = None) -> int:
         for row in rows:
             print(json.dumps(row))
         return 0
+    wide = args.seeds > 1  # minimum to maximum over the seeds
+    success_w, danger_w, return_w = (17, 15, 17) if wide else (8, 7, 9)
     header = (
-        f"{'learner':8} {'success':>8} {'danger':>7} {'return':>9} {'wall s':>7} "
-        f"{'env steps':>10}"
+        f"{'learner':8} {'success':>{success_w}} {'danger':>{danger_w}} "
+        f"{'return':>{return_w}} {'wall s':>7} {'env steps':>10}"
     )
     print(header)
     print("-" * len(header))
     for row in rows:
         print(
-            f"{row['algo']:8} {spread(row['success_rate'], '.1%', 8)} "
-            f"{spread(row['danger_frequency'], '.1%', 7)} {spread(row['return'], '.1f', 9)} "
+            f"{row['algo']:8} {spread(row['success_rate'], '.1%', success_w)} "
+            f"{spread(row['danger_frequency'], '.1%', danger_w)} "
+            f"{spread(row['return'], '.1f', return_w)} "
             f"{row['wall_s']:7.1f} {row['env_steps']:10d}"
         )
     if args.eval_every:
@@ -138,7 +141,7 @@ def spread(values: list[float], form: str, width: int) -> str:
     """One value, or the minimum and maximum of several, in ``width`` characters."""
     if len(values) == 1:
         return f"{values[0]:{width}{form}}"
-    return f"{min(values):{form}}-{max(values):{form}}".rjust(width)
+    return f"{min(values):{form}} to {max(values):{form}}".rjust(width)
 
 
 if __name__ == "__main__":
