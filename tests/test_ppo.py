@@ -225,3 +225,37 @@ def test_ccr_fits_its_model_on_the_first_rollout_of_the_initial_policy():
     assert float(jnp.mean(displacement)) > 1e-3  # the robots move
     score = episode.info["emergency_score"]  # the tail: robots bumping into each other
     assert float(jnp.median(score)) < 1e-3 * float(jnp.mean(displacement))
+
+
+def train_seeds(config: TrainConfig, seeds=(0, 1, 2)) -> dict:
+    """The evaluation history of every seed, trained side by side, leaves ``[seeds, points]``."""
+    program = make_train(config)
+    keys = jnp.stack([jax.random.PRNGKey(seed) for seed in seeds])
+    state, history = jax.jit(jax.vmap(program.train))(keys)
+    program.raise_if_nonfinite(state)
+    return {name: np.asarray(values) for name, values in history.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["ippo", "mappo"])
+def test_ippo_and_mappo_learn_nominal_on_every_seed(algo):
+    # The defaults (128 environments) at about half their budget: the calibration curve
+    # (experiments/results/calibration/ppo_nominal_defaults.txt) is above 96% there.
+    history = train_seeds(TrainConfig(algo=algo, scenario="nominal", total_env_steps=160_000,
+                                      eval_every=160_000, eval_episodes=64))
+    success = history["success_rate"][:, -1]
+    print(f"{algo} on nominal: success {success}")
+    assert np.all(success >= 0.9), success
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["ippo", "mappo"])
+def test_ippo_and_mappo_improve_their_return_with_a_hazard(algo):
+    history = train_seeds(TrainConfig(algo=algo, scenario="hidden_obstacle",
+                                      total_env_steps=160_000, eval_every=160_000,
+                                      eval_episodes=64))
+    initial, final = history["return"][:, 0], history["return"][:, -1]
+    print(f"{algo} on the hidden obstacle: return {initial.round(1)} -> {final.round(1)}, "
+          f"success {history['success_rate'][:, -1]}")
+    # Returns are negative distances summed over the episode: improving = closer to 0.
+    assert np.all(final > initial + 0.3 * np.abs(initial)), (initial, final)

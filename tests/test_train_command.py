@@ -724,6 +724,45 @@ def test_a_lagrangian_run_records_its_multiplier_and_resumes_exactly(tmp_path, c
     assert act(obs).shape == (5, spec.train.num_robots, 2)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", ["ccr", "lagrangian"])
+def test_a_mappo_run_resumes_exactly_and_loads(variant, tmp_path, capsys):
+    """An on-policy run (MAPPO with CCR, or with the Lagrangian's cost channel) stopped half
+    way and resumed ends exactly where the straight run ends; its policy and team load."""
+    tiny = ["--scenario", "hidden_obstacle", "--algo", "mappo", "--variant", variant,
+            "--steps", "800", "--num-envs", "4", "--episode-length", "10", "--eval-every",
+            "200", "--eval-episodes", "4", "--ppo-actor-hidden", "16", "--ppo-critic-hidden",
+            "16", "--seeds", "2", "--seed-offset", "3", "--checkpoint-every", "200",
+            "--no-progress"]
+    if variant == "lagrangian":
+        tiny += ["--cost-limit", "0.001", "--lagrange-ki", "1"]
+    straight, cut = tmp_path / "straight", tmp_path / "cut"
+    status, _, err = run_main(train, [*tiny, "--out", straight], capsys)
+    assert status == 0, err
+    half = [*tiny, "--out", cut]
+    half[half.index("--steps") + 1] = "400"
+    status, _, err = run_main(train, half, capsys)
+    assert status == 0, err
+    status, _, err = run_main(train, ["--out", cut, "--resume", "--steps", 800], capsys)
+    assert status == 0, err
+    a, b = final_state(straight), final_state(cut)
+    assert a.step == b.step == 800
+    for x, y in zip(jax.tree_util.tree_leaves(a.state), jax.tree_util.tree_leaves(b.state),
+                    strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert [{k: v for k, v in r.items() if k != "wall_time_s"}
+            for r in read_metrics(straight / "metrics.csv")] == [
+        {k: v for k, v in r.items() if k != "wall_time_s"}
+        for r in read_metrics(cut / "metrics.csv")]
+    spec = train.RunSpec.from_dict(RunFolder(straight).read_config()["run"])
+    assert spec.train.num_envs == 4 and spec.train.resolved_learner.centralised_critic
+    obs = jnp.zeros((5, spec.train.num_robots, make_train(spec.train).obs_size))
+    act = ccrjax.load_policy(straight, seed=4)
+    assert act(obs).shape == (5, spec.train.num_robots, 2)
+    team = ccrjax.load_team(straight, seed=4)
+    assert 0.0 <= float(team.evaluate(jax.random.PRNGKey(1))["success_rate"]) <= 1.0
+
+
 def test_a_run_is_finished_only_once_its_summary_and_policy_are_written(finished_run, tmp_path):
     """A run stopped while finishing (no exported policy yet), or an extension stopped
     before its summary (the summary of the shorter run), resumes instead of being taken
