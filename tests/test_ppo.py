@@ -188,6 +188,7 @@ def test_on_policy_learners_default_to_many_environments_and_learn_at_once():
     assert TrainConfig(algo="mappo", num_envs=None) == mappo
 
 
+@pytest.mark.slow  # two whole training programs compiled: about 40 s of the suite
 def test_vmapped_seeds_equal_separate_runs():
     config = TrainConfig(algo="mappo", scenario="turbulence", num_envs=4, episode_length=10,
                          total_env_steps=120, eval_every=40, eval_episodes=4, learner=TINY)
