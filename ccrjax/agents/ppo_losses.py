@@ -11,11 +11,15 @@ Notation of Schulman et al., *Proximal Policy Optimization Algorithms* (2017), a
 
 from __future__ import annotations
 
+import math
+
 import chex
 import jax
 import jax.numpy as jnp
 
-LOG_2PI = float(jnp.log(2.0 * jnp.pi))
+# A Python float: computing it with jax.numpy at import would start the XLA backend before
+# jax.distributed.initialize() can run.
+LOG_2PI = math.log(2.0 * math.pi)
 
 
 def gae(reward: jax.Array, value: jax.Array, next_value: jax.Array, terminated: jax.Array,
