@@ -15,6 +15,11 @@ evaluations lies within the 95% interval of the 20% before). The proposed budget
 smallest candidate from which on every larger candidate plateaus too, ``None`` if the
 return is still moving at ``--steps``.
 
+``--algos ippo mappo --candidate-every 500000`` is the on-policy learners' budgets run
+(``docs/protocol.md``, amendment of 2026-12-02, "the on-policy learners"): 4M steps each
+(their budget is not chosen yet), and the summary's last line gives their family's budget,
+the largest proposed by their six cells, once those exist.
+
 ``--tables-seeds`` runs the longer-budget check of ``docs/protocol.md`` (its amendment of
 2026-11-26): the plain learners alone on the tables' seeds 0-9, 6M steps by default, checked
 at the candidates 3M, 4.5M and 6M; the budget for all is the smallest candidate at which
@@ -153,6 +158,41 @@ def one_budget_for_all(cells: list[dict[str, Any]]) -> dict[str, Any]:
             "failing": failing}
 
 
+def on_policy_budget(cells: list[dict[str, Any]], cap: int) -> dict[str, Any]:
+    """The on-policy learners' budget (docs/protocol.md, amendment of 2026-12-02, "the
+    on-policy learners"): the largest of the checked ``cells``' proposed budgets, so that by
+    it every plain on-policy learner has levelled off on the budget seeds; if a cell
+    proposes none (its return still moving at the end), ``cap`` (the budgets run's
+    length), flagged (``passed`` false); ``moving`` names such cells."""
+    moving = [f"{cell['scenario']}-{cell['algo']}" for cell in cells
+              if cell["proposed_budget"] is None]
+    if moving or not cells:
+        return {"budget": cap, "passed": False, "moving": moving}
+    return {"budget": max(cell["proposed_budget"] for cell in cells), "passed": True,
+            "moving": []}
+
+
+def on_policy_lines(result: dict[str, Any]) -> list[str]:
+    """The on-policy learners' budget by :func:`on_policy_budget` once the six cells of the
+    budget seeds (the paper's scenarios x IPPO and MAPPO) exist."""
+    cells = {(cell["scenario"], cell["algo"]): cell for cell in result["cells"]
+             if cell["algo"] in protocol.ON_POLICY_ALGOS and cell["scenario"] in PAPER_SCENARIOS}
+    if not cells or tuple(result["settings"]["seeds"]) != protocol.BUDGET_SEEDS:
+        return []
+    wanted = len(PAPER_SCENARIOS) * len(protocol.ON_POLICY_ALGOS)
+    if len(cells) < wanted:
+        return ["", f"The on-policy learners' budget (the largest proposed budget of their "
+                f"{wanted} cells): not yet, {len(cells)} of them are made."]
+    rule = on_policy_budget(list(cells.values()),
+                            max(cell["budget"] for cell in cells.values()))
+    if rule["passed"]:
+        return ["", f"The on-policy learners' budget (the largest proposed budget of their "
+                f"{wanted} cells): **{rule['budget']:,}** steps."]
+    return ["", f"The on-policy learners' budget: **{rule['budget']:,}** steps (the budgets "
+            f"run's length), flagged: the return was still moving at the end for "
+            f"{', '.join(rule['moving'])}."]
+
+
 def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
                ) -> dict[str, Any]:
     """One scenario and learner's plain runs on ``settings.seeds``: the curves (checked by
@@ -284,7 +324,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     skipped = [line for cell in result["cells"]
                for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
     runs = sum(len(cell["seeds"]) for cell in result["cells"])
-    lines += [*rule_lines(result), "", nonfinite_text(skipped, f"the {runs} runs") if runs else
+    lines += [*rule_lines(result), *on_policy_lines(result), "", nonfinite_text(skipped, f"the {runs} runs") if runs else
               "No cell is made yet."]
     return "\n".join(lines) + "\n"
 
@@ -311,8 +351,10 @@ def draw_budget_curves(cells: dict[tuple[str, str], dict], out: Path, quick: boo
 def build_parser() -> argparse.ArgumentParser:
     parser = cli.Parser(prog=PROG, description="The budgets at which the plain learners' "
                         "evaluated return has levelled off, on the budget seeds.")
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
-                        help="learners (default: all three)")
+    parser.add_argument("--algos", nargs="+", choices=protocol.EXPERIMENT_ALGOS,
+                        default=list(ALGOS),
+                        help="learners (default: the paper's three; the on-policy ones, "
+                        "ippo and mappo, are named)")
     parser.add_argument("--scenarios", nargs="+", choices=ALL_SCENARIOS,
                         default=list(PAPER_SCENARIOS),
                         help="scenarios (default: the paper's three)")
@@ -427,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
         if cell_is_current(cell, record):
             cells.setdefault((cell["scenario"], cell["algo"]), cell)
     ordered = {(s, a): checked(cells[(s, a)], settings)
-               for a in ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
+               for a in protocol.EXPERIMENT_ALGOS for s in ALL_SCENARIOS if (s, a) in cells}
     result = {
         "settings": record,
         "budgets": {a: settings.budget(a)

@@ -31,7 +31,7 @@ from ccrjax.run import distributed
 from ccrjax.run.folder import git_commit, write_atomic
 from ccrjax.run.grid_checkpoint import discard, train_resumably
 from ccrjax.run.sweep_grid import nonfinite_log
-from ccrjax.training import ALGOS, TrainConfig
+from ccrjax.training import TrainConfig
 from ccrjax.training.config import make_env
 from ccrjax.training.grid import GridRuns, GridTraining
 from experiments import protocol
@@ -207,7 +207,8 @@ def why_not_current(cell: dict[str, Any] | None, record: dict[str, Any]) -> str 
     was stored do not), the same :func:`training_record` as the current code gives."""
     if not cell:
         return "none made"
-    if not isinstance(cell.get("settings"), dict) or cell.get("algo") not in ALGOS:
+    if (not isinstance(cell.get("settings"), dict)
+            or cell.get("algo") not in protocol.EXPERIMENT_ALGOS):
         return "not a cell"
 
     def differing(made: dict[str, Any], wanted: dict[str, Any]) -> str:
@@ -256,7 +257,8 @@ def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path) 
 def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
     """Whether two settings records make the same cells, for every learner (so that the
     invocation records of a narrower or wider invocation into a folder stay together)."""
-    return all(cell_identity(record, algo) == cell_identity(other, algo) for algo in ALGOS)
+    return all(cell_identity(record, algo) == cell_identity(other, algo)
+               for algo in protocol.EXPERIMENT_ALGOS)
 
 
 def check_out(out: Path, force: bool) -> str | None:
@@ -416,7 +418,7 @@ def check_experiment(folder: Path, experiment: str, settings: dict[str, Any],
         return (f"{folder} holds the {old['variant']} search's results, not the "
                 f"{settings['variant']} search's: name another --out")
     if not force and not same_cells(old, settings):
-        differing = sorted({key for algo in ALGOS
+        differing = sorted({key for algo in protocol.EXPERIMENT_ALGOS
                             for key, value in cell_identity(settings, algo).items()
                             if cell_identity(old, algo).get(key) != value})
         return (f"{folder} holds cells made with other settings ({', '.join(differing)}): "

@@ -13,6 +13,7 @@ from typing import Any
 
 from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
+from ccrjax.agents.ppo import PPOConfig
 from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.transforms.lagrangian import Lagrangian
 from experiments.paper import PAPER_SCENARIOS
@@ -23,6 +24,10 @@ TABLE_SEEDS = tuple(range(0, 10))
 SELECTION_SEEDS = (100, 101, 102)
 BUDGET_SEED_OFFSET = 200  # experiments/budgets.py
 BUDGET_SEEDS = tuple(range(BUDGET_SEED_OFFSET, BUDGET_SEED_OFFSET + 3))
+# The on-policy learners (amendment of 2026-12-02, "the on-policy learners"): a family of
+# their own, with its own budget, searches' selection and tables, beside the paper's three.
+ON_POLICY_ALGOS = ("ippo", "mappo")
+EXPERIMENT_ALGOS = (*ALGOS, *ON_POLICY_ALGOS)
 SEED_SETS = {"the tables'": TABLE_SEEDS, "the selection": SELECTION_SEEDS,
              "the budgets'": BUDGET_SEEDS}
 
@@ -51,6 +56,10 @@ BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 # longer-budget check's rule, on the plain learners alone, gave 6M steps for every learner.
 # Both searches and all 18 table programs at it are the protocol's too, reported beside the
 # 3M tables (not instead of them); the tables at one budget take the searches at the same.
+# The on-policy learners' budgets run (amendment of 2026-12-02, "the on-policy learners"):
+# the plain IPPO and MAPPO train this long on the budget seeds, and their budget is chosen
+# from it; until it is, this is what experiments/budgets.py trains them for.
+ON_POLICY_CHECK_STEPS = {"ippo": 4_000_000, "mappo": 4_000_000}
 LONGER_BUDGETS = {"iddpg": 6_000_000, "maddpg": 6_000_000, "maac": 6_000_000}
 # The constrained baseline's budget (docs/protocol.md, amendment of 2026-12-02): chosen on
 # the plain learners' budgets curves (90% of their mean success at 3M over the 9 pairs), for
@@ -92,8 +101,11 @@ def budgets_text() -> str:
 
 
 def budget(algo: str, steps: int | None) -> int:
-    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``."""
-    return steps if steps is not None else BUDGETS[algo]
+    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``
+    (for a learner whose budget is not chosen yet, the length of its budgets run)."""
+    if steps is not None:
+        return steps
+    return BUDGETS[algo] if algo in BUDGETS else ON_POLICY_CHECK_STEPS[algo]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -152,10 +164,16 @@ def lagrangian(config: TrainConfig) -> Lagrangian:
 
 def quick(config: TrainConfig) -> TrainConfig:
     """``config`` at a tiny size (2 environments of 10 steps, 8-unit networks, learning from
-    the 40th transition): the pipeline of an experiment in minutes, not its learning."""
-    learner = (MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8, attention_heads=2,
-                          update_every=20, gradient_steps=1) if config.algo == "maac" else
-               DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,), update_every=20))
+    the 40th transition, an on-policy learner from its first rollout, in 2 minibatches):
+    the pipeline of an experiment in minutes, not its learning."""
+    if config.on_policy:
+        learner = PPOConfig(actor_hidden=(8,), critic_hidden=(8,), minibatches=2)
+    elif config.algo == "maac":
+        learner = MAACConfig(batch_size=32, policy_hidden=(8,), critic_hidden=8,
+                             attention_heads=2, update_every=20, gradient_steps=1)
+    else:
+        learner = DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,),
+                             update_every=20)
     return dataclasses.replace(config, num_envs=2, episode_length=10, learning_starts=40,
                                learner=learner)
 

@@ -151,6 +151,30 @@ def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budge
             ) in "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
 
 
+def test_the_on_policy_budget_is_the_largest_proposed_by_their_six_cells(budgets):
+    """The on-policy learners' rule (docs/protocol.md, amendment of 2026-12-02): the largest
+    proposed budget of the six plain cells on the budget seeds; the budgets run's length,
+    flagged with the cells still moving, where one proposes none; nothing before all six."""
+    proposals = {("hidden_obstacle", "ippo"): 1_500_000, ("turbulence", "ippo"): 750_000,
+                 ("strong_wind", "ippo"): 1_000_000, ("hidden_obstacle", "mappo"): 2_250_000,
+                 ("turbulence", "mappo"): 500_000, ("strong_wind", "mappo"): 1_250_000}
+    cells = [{"scenario": s, "algo": a, "budget": 4_000_000, "proposed_budget": p}
+             for (s, a), p in proposals.items()]
+    cells.append({"scenario": "hidden_obstacle", "algo": "maddpg", "budget": 3_000_000,
+                  "proposed_budget": 3_000_000})  # not of the family: ignored
+    result = {"cells": cells, "settings": {"seeds": [200, 201, 202]}}
+    assert budgets.on_policy_budget(cells[:6], 4_000_000) == {
+        "budget": 2_250_000, "passed": True, "moving": []}
+    assert "their 6 cells): **2,250,000** steps." in "\n".join(budgets.on_policy_lines(result))
+    assert "not yet, 5 of them" in "\n".join(budgets.on_policy_lines(
+        {**result, "cells": cells[1:]}))
+    cells[4]["proposed_budget"] = None
+    text = "\n".join(budgets.on_policy_lines(result))
+    assert ("**4,000,000** steps (the budgets run's length), flagged: the return was still "
+            "moving at the end for turbulence-mappo.") in text
+    assert budgets.on_policy_lines({**result, "settings": {"seeds": list(range(10))}}) == []
+
+
 def test_the_tables_seeds_check_runs_the_protocols_longer_budget(budgets):
     """--tables-seeds: the tables' seeds, 6M steps, the candidates 3M, 4.5M and 6M, as the
     amendment of 2026-11-26 says."""
