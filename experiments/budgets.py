@@ -324,8 +324,8 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     skipped = [line for cell in result["cells"]
                for line in nonfinite_runs(cell, f"{cell['scenario']}, {cell['algo']}")]
     runs = sum(len(cell["seeds"]) for cell in result["cells"])
-    lines += [*rule_lines(result), *on_policy_lines(result), "", nonfinite_text(skipped, f"the {runs} runs") if runs else
-              "No cell is made yet."]
+    lines += [*rule_lines(result), *on_policy_lines(result), "",
+              nonfinite_text(skipped, f"the {runs} runs") if runs else "No cell is made yet."]
     return "\n".join(lines) + "\n"
 
 
