@@ -73,14 +73,20 @@ report: install
 mutants: install
 	$(PY) tools/mutants.py
 
-# Peer comparison: JaxMARL's MPE simple_spread, measured the same way, in its own venv.
-bench-peers: $(PEER_STAMP)
+# Peer comparison: JaxMARL's MPE simple_spread, measured the same way, in its own venv; with
+# JAXMARL_IPPO=<a JaxMARL checkout>/baselines/IPPO/ippo_ff_mpe.py, also its IPPO training
+# against ccrjax's (the pip package has no baselines).
+JAXMARL_IPPO ?=
+bench-peers: install $(PEER_STAMP)
 	$(PEER_PY) benchmarks/jaxmarl_peer.py
+	@if [ -n "$(JAXMARL_IPPO)" ]; then \
+	  $(PY) benchmarks/ippo_versus_jaxmarl.py --jaxmarl-ippo "$(JAXMARL_IPPO)"; \
+	else echo "IPPO against JaxMARL's: give JAXMARL_IPPO=<checkout>/baselines/IPPO/ippo_ff_mpe.py"; fi
 
 $(PEER_STAMP):
 	@test -x $(PEER_PY) || $(PYTHON) -m venv $(PEER_VENV)
 	$(PEER_PY) -m pip install --quiet --upgrade pip
-	$(PEER_PY) -m pip install --quiet jaxmarl
+	$(PEER_PY) -m pip install --quiet jaxmarl distrax
 	@touch $(PEER_STAMP)
 
 clean:
