@@ -28,6 +28,23 @@ BUDGET_SEEDS = tuple(range(BUDGET_SEED_OFFSET, BUDGET_SEED_OFFSET + 3))
 # their own, with its own budget, searches' selection and tables, beside the paper's three.
 ON_POLICY_ALGOS = ("ippo", "mappo")
 EXPERIMENT_ALGOS = (*ALGOS, *ON_POLICY_ALGOS)
+FAMILIES = {"off-policy": ALGOS, "on-policy": ON_POLICY_ALGOS}
+
+
+def family(algos: Sequence[str]) -> tuple[str, ...]:
+    """Every learner of the family that ``algos`` belong to: a search's rule and a table's
+    aggregates run over that family's pairs (raises ``ValueError`` if ``algos`` mix
+    families)."""
+    found = {name for name, members in FAMILIES.items() if set(algos) & set(members)}
+    if len(found) != 1:
+        raise ValueError(
+            "--algos " + " ".join(algos) + " mixes the off-policy learners ("
+            + ", ".join(ALGOS) + ") with the on-policy ones (" + ", ".join(ON_POLICY_ALGOS)
+            + "): each family has its own searches and tables (docs/protocol.md, amendment "
+            "of 2026-12-02); name one family's learners")
+    return FAMILIES[found.pop()]
+
+
 SEED_SETS = {"the tables'": TABLE_SEEDS, "the selection": SELECTION_SEEDS,
              "the budgets'": BUDGET_SEEDS}
 
@@ -60,6 +77,9 @@ BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 # the plain IPPO and MAPPO train this long on the budget seeds, and their budget is chosen
 # from it; until it is, this is what experiments/budgets.py trains them for.
 ON_POLICY_CHECK_STEPS = {"ippo": 4_000_000, "mappo": 4_000_000}
+# Their family's budget, by the amendment's rule from that run; None until it is chosen
+# (their searches are provisional until then).
+ON_POLICY_BUDGET: int | None = None
 LONGER_BUDGETS = {"iddpg": 6_000_000, "maddpg": 6_000_000, "maac": 6_000_000}
 # The constrained baseline's budget (docs/protocol.md, amendment of 2026-12-02): chosen on
 # the plain learners' budgets curves (90% of their mean success at 3M over the 9 pairs), for
@@ -105,7 +125,9 @@ def budget(algo: str, steps: int | None) -> int:
     (for a learner whose budget is not chosen yet, the length of its budgets run)."""
     if steps is not None:
         return steps
-    return BUDGETS[algo] if algo in BUDGETS else ON_POLICY_CHECK_STEPS[algo]
+    if algo in ON_POLICY_ALGOS:
+        return ON_POLICY_CHECK_STEPS[algo] if ON_POLICY_BUDGET is None else ON_POLICY_BUDGET
+    return BUDGETS[algo]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -183,7 +205,8 @@ PLATEAU_WORDS = {True: "yes", False: "**no**",
                  None: "undetermined (too few evaluations or seeds, or a NaN return)"}
 # The learners as the experiments' outputs name them; IDDPG is the paper's "DDPG" (one DDPG
 # per robot, its critic seeing only its own observation and action).
-LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC"}
+LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC", "ippo": "IPPO",
+                 "mappo": "MAPPO"}
 
 
 def quick_note(variants: bool = True) -> str:

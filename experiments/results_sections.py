@@ -7,12 +7,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from ccrjax.training import ALGOS
 from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_SCENARIOS
 from experiments.regimes import chosen_regime_lines
 from experiments.tables_grid import LEARNER_NAMES, SCENARIO_NAMES, VARIANTS
 from experiments.tables_report import welch_symbols
 
-ALGOS = tuple(LEARNER_NAMES)
 PAIRS = [(s, a) for s in PAPER_SCENARIOS for a in ALGOS]
 
 

@@ -174,27 +174,40 @@ def not_the_protocols(settings: Settings) -> str | None:
     ones (:data:`protocol.LONGER_BUDGETS`). Such a selection is provisional: the tables
     refuse it."""
     _, values = protocol.SEARCHED[settings.variant]
-    left_out = [f"{s}-{a}" for s in PAPER_SCENARIOS for a in ALGOS
+    family = protocol.family(settings.algos)
+    left_out = [f"{s}-{a}" for s in PAPER_SCENARIOS for a in family
                 if s not in settings.scenarios or a not in settings.algos]
+    pairs = len(PAPER_SCENARIOS) * len(family)
+    budgets = protocol_budgets(settings.variant, family)
     reasons = [
         *(["the quick mode"] if settings.quick else []),
-        *([f"{len(left_out)} of 9 pairs not summarised ({', '.join(left_out)})"]
+        *([f"{len(left_out)} of {pairs} pairs not summarised ({', '.join(left_out)})"]
           if left_out else []),
+        *(["the on-policy learners' budget is not chosen yet"]
+          if family == protocol.ON_POLICY_ALGOS and protocol.ON_POLICY_BUDGET is None else []),
+        *(["the amendment of 2026-12-02 searches no Lagrangian for the on-policy learners"]
+          if family == protocol.ON_POLICY_ALGOS and settings.variant == "lagrangian"
+          else []),
         *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),
         *([f"--steps {settings.steps}"]
-          if {a: settings.budget(a) for a in ALGOS} not in protocol_budgets(settings.variant)
-          else []),
+          if budgets and {a: settings.budget(a) for a in family} not in budgets else []),
         *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
           != (protocol.EVAL_EVERY, protocol.EVAL_EPISODES) else []),
     ]
     return "; ".join(reasons) or None
 
 
-def protocol_budgets(variant: str) -> list[dict[str, int]]:
-    """The budgets at which ``variant``'s search is the protocol's: the Lagrangian's at its
-    amendment's budget, the others at the protocol's budgets or its longer ones."""
+def protocol_budgets(variant: str, family: tuple[str, ...] = ALGOS) -> list[dict[str, int]]:
+    """The budgets at which ``variant``'s search of the learners ``family`` is the
+    protocol's: the off-policy Lagrangian's at its amendment's budget, the other off-policy
+    searches at the protocol's budgets or its longer ones, the on-policy ones at their
+    family's budget (none before it is chosen, nor for a Lagrangian)."""
+    if family == protocol.ON_POLICY_ALGOS:
+        if protocol.ON_POLICY_BUDGET is None or variant == "lagrangian":
+            return []
+        return [{algo: protocol.ON_POLICY_BUDGET for algo in family}]
     if variant == "lagrangian":
         return [{algo: protocol.LAGRANGIAN_BUDGET for algo in ALGOS}]
     return [protocol.BUDGETS, protocol.LONGER_BUDGETS]
@@ -308,11 +321,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
                         default=list(PAPER_SCENARIOS),
                         help="scenarios (default: all three)")
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
-                        help="learners (default: all three)")
+    parser.add_argument("--algos", nargs="+", choices=protocol.EXPERIMENT_ALGOS,
+                        default=list(ALGOS),
+                        help="learners, of one family (default: the paper's three; ippo "
+                        "mappo: the on-policy family, whose rule runs over its own 6 pairs)")
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
-    add_out_options(parser, "search/<variant>", default_text="runs/search/<variant>")
+    add_out_options(parser, "search/<variant> (the on-policy learners': "
+                    "search_on_policy/<variant>)", default_text="runs/search/<variant>")
     add_checkpoint_option(parser)
     add_no_train_option(parser)
     distributed.add_options(parser)
@@ -321,6 +337,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     _, default_values = protocol.SEARCHED[args.variant]
+    try:
+        protocol.family(args.algos)
+    except ValueError as error:
+        raise cli.UsageError(str(error)) from None
     values = tuple(sorted({float(v) for v in (args.values or default_values)}))
     fields: dict[str, Any] = {"variant": args.variant, "values": values,
                               "scenarios": tuple(dict.fromkeys(args.scenarios)),

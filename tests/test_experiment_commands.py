@@ -63,6 +63,8 @@ def refused(module, argv, capsys, *fragments):
     (["--variant", "ccr", "--quick", "--seed-offset", "8"], ("overlaps the tables' seeds",)),
     (["--variant", "ccr", "--steps", "20000"], ("(--steps) 20,000 ends before learning",)),
     (["--variant", "ccr", "--steps", "130000"], ("--steps 130,000 runs as 200,000",)),
+    (["--variant", "ccr", "--algos", "maddpg", "ippo"],
+     ("mixes the off-policy learners", "name one family's learners")),
 ])
 def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -324,6 +326,20 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     assert search.not_the_protocols(dataclasses.replace(full, steps=6_000_000)) is None
     assert "--steps 1000000" in search.not_the_protocols(
         dataclasses.replace(full, steps=1_000_000))
+    # The on-policy family (amendment of 2026-12-02): its own 6 pairs, at its own budget,
+    # which its budgets run chooses; until then its selections are provisional.
+    on_policy = dataclasses.replace(full, algos=("ippo", "mappo"))
+    monkeypatch.setattr(search.protocol, "ON_POLICY_BUDGET", None)
+    assert "budget is not chosen yet" in search.not_the_protocols(on_policy)
+    monkeypatch.setattr(search.protocol, "ON_POLICY_BUDGET", 2_000_000)
+    assert search.not_the_protocols(on_policy) is None
+    assert "3 of 6 pairs not summarised" in search.not_the_protocols(
+        dataclasses.replace(on_policy, algos=("ippo",)))
+    assert "--steps 1000000" in search.not_the_protocols(
+        dataclasses.replace(on_policy, steps=1_000_000))
+    assert "no Lagrangian for the on-policy" in search.not_the_protocols(
+        dataclasses.replace(on_policy, variant="lagrangian"))
+    monkeypatch.undo()
     searches = tmp_path / "searches"
     for variant, protocol_choice in (("ccr", False), ("pessimistic", True)):
         (searches / variant).mkdir(parents=True)
