@@ -83,6 +83,8 @@ from experiments.tables_statistics import summary
 
 PROG = "python experiments/tables.py"
 SEARCHES = RESULTS / "search"
+# The on-policy learners' committed searches (docs/protocol.md, amendment of 2026-12-02).
+ON_POLICY_SEARCHES = RESULTS / "search_on_policy"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,8 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
                         default=list(PAPER_SCENARIOS),
                         help="train only these scenarios' programs (default: all three; the "
                         "tables are written once all 18 programs exist)")
-    parser.add_argument("--algos", nargs="+", choices=ALGOS, default=list(ALGOS),
-                        help="train only these learners' programs (default: all three)")
+    parser.add_argument("--algos", nargs="+", choices=protocol.EXPERIMENT_ALGOS,
+                        default=list(ALGOS),
+                        help="train only these learners' programs, of one family (default: "
+                        "the paper's three; ippo mappo: the on-policy family's tables, with "
+                        "its own searches, experiments/results/search_on_policy)")
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "tables", default_text="runs/tables")
@@ -126,17 +131,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def selected(variant: str, given: float | None, quick: bool, searches: Path | None = None,
-             steps: int | None = None) -> tuple[float, str]:
+             steps: int | None = None, algos: tuple[str, ...] = ALGOS) -> tuple[float, str]:
     """The value of ``variant``'s parameter and where it came from: given, or the
     search's result in ``searches/<variant>/`` (default :data:`SEARCHES`), the protocol's
     choice only, made at the budgets these tables train (``steps`` per run, else the
     protocol's); with ``quick``, a fixed value unless ``searches`` names (quick) searches,
-    whose provisional choice it then takes, to check the way from searches to tables."""
+    whose provisional choice it then takes, to check the way from searches to tables.
+    ``algos``: the learner family of the tables, whose searches (default
+    :data:`ON_POLICY_SEARCHES` for the on-policy one) and budgets count."""
     if given is not None:
         return given, "given on the command line"
     if quick and searches is None:
         return {"ccr": 30.0, "pessimistic": 1.0}[variant], "the quick mode's fixed value"
-    searches = SEARCHES if searches is None else searches
+    default = SEARCHES if algos == ALGOS else ON_POLICY_SEARCHES
+    searches = default if searches is None else searches
     path = searches / variant / "search.json"
     search = read_json(path)
     if not search or "selection" not in search:
@@ -151,15 +159,15 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
         option = "--lam" if variant == "ccr" else "--penalty"
         why = chosen.get("provisional_because") or "made before selections said so"
         raise cli.UsageError(f"the {variant} search at {path} is not the protocol's choice "
-                             f"({why}): finish it on all 9 pairs at the protocol's settings, "
-                             f"or give {option}")
-    budgets = {algo: protocol.budget(algo, steps) for algo in ALGOS}
+                             f"({why}): finish it on all its pairs at the protocol's "
+                             f"settings, or give {option}")
+    budgets = {algo: protocol.budget(algo, steps) for algo in algos}
     if search.get("budgets") != budgets:  # e.g. the protocol's budgets changed after it ran
         raise cli.UsageError(f"the {variant} search at {path} trained the budgets "
                              f"{search.get('budgets')}, not these tables' {budgets}: run it "
                              "again at these budgets, or name searches made at them with "
                              "--searches")
-    where = path.parent.name if searches == SEARCHES else str(path.parent)
+    where = path.parent.name if searches == default else str(path.parent)
     fallback = " (its fallback: no value met the rule)" if chosen.get("fallback") else ""
     return float(chosen["value"]), f"selected by the search in {where}{fallback}"
 
@@ -185,6 +193,10 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError(problem)
         fields["scenarios"] = tuple(dict.fromkeys(args.scenarios))
         fields["algos"] = tuple(dict.fromkeys(args.algos))
+        try:
+            family = protocol.family(fields["algos"])
+        except ValueError as error:
+            raise cli.UsageError(str(error)) from None
 
         def validated(settings: Settings) -> Settings:
             for job in jobs_of(settings):  # every configuration validated before compiling
@@ -199,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
                                      ("penalty", "pessimistic", args.penalty)):
             try:  # both named at once when both are missing
                 chosen[name], sources[name] = selected(variant, given, args.quick,
-                                                       args.searches, args.steps)
+                                                       args.searches, args.steps, family)
             except cli.UsageError as error:
                 problems.append(str(error))
         if problems:
@@ -218,13 +230,14 @@ def main(argv: list[str] | None = None) -> int:
     if not distributed.is_primary():  # process 0 writes the tables
         return 0
     cells, missing = grid_cells(out, settings)
+    family = protocol.family(settings.algos)
     if missing:
-        total = len(grid_jobs())
+        total = len(grid_jobs(family))
         print(f"{total - len(missing)} of {total} programs made in {out}; the tables need them all "
               f"(missing: {', '.join(missing)}): run again naming the others, or all")
         return 0
     controllers = reference_rows(settings)
-    whole = dataclasses.replace(settings, scenarios=PAPER_SCENARIOS, algos=ALGOS)  # all 18 exist
+    whole = dataclasses.replace(settings, scenarios=PAPER_SCENARIOS, algos=family)  # all exist
     result = summary(cells, whole, ledger.invocations, controllers, sources)
     write_atomic(out / "tables.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "tables.md", tables_markdown(result))

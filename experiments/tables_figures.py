@@ -11,7 +11,6 @@ from PIL import Image, ImageDraw, ImageFont
 
 from ccrjax.envs.scenarios import Layout
 from ccrjax.run.folder import replacing
-from ccrjax.training import ALGOS
 from ccrjax.viz.plots import (
     VARIANT_COLOURS,
     Curves,
@@ -30,9 +29,10 @@ def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
     """The tables' figures from the cells (``quick``: every title says the quick mode)."""
     note = protocol.QUICK_FIGURE if quick else ""
     written = []
+    algos = tuple(dict.fromkeys(algo for _, algo, _ in cells))  # the family the cells hold
     for scenario in PAPER_SCENARIOS:
         panels = {}
-        for algo in ALGOS:
+        for algo in algos:
             panels[LEARNER_NAMES[algo]] = {
                 variant: (np.asarray(cells[(scenario, algo, variant)]["history"]["return"]),
                           np.asarray(cells[(scenario, algo, variant)]["history"]
@@ -44,7 +44,7 @@ def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
         written.append(path)
     metrics = ("return", "danger_frequency", "success_rate", "learning_danger_steps")
     for scenario in PAPER_SCENARIOS:
-        for algo in ALGOS:
+        for algo in algos:
             curves = Curves()
             for variant in VARIANTS:
                 cell = cells[(scenario, algo, variant)]
@@ -57,6 +57,8 @@ def draw_figures(cells, out: Path, quick: bool = False) -> list[Path]:
                         title=f"{note}{SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}: plain, "
                         "pessimistic and CCR during training")
             written.append(path)
+    if "maddpg" not in algos:
+        return written
     plain = cells[("hidden_obstacle", "maddpg", "plain")]
     ccr = cells[("hidden_obstacle", "maddpg", "ccr")]
     path = out / "trajectories_hidden_obstacle_maddpg.png"

@@ -167,15 +167,16 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
     return cells
 
 
-def grid_jobs() -> list[Job]:
-    """The whole grid's 18 programs."""
-    return [Job(scenario, algo, variants) for scenario in PAPER_SCENARIOS for algo in ALGOS
+def grid_jobs(algos: tuple[str, ...] = ALGOS) -> list[Job]:
+    """The whole grid's programs for the learner family ``algos``: two per scenario and
+    learner (18 for the paper's three learners, 12 for the on-policy two)."""
+    return [Job(scenario, algo, variants) for scenario in PAPER_SCENARIOS for algo in algos
             for variants in (("plain", "pessimistic"), ("ccr",))]
 
 
 def jobs_of(settings: Settings) -> list[Job]:
     """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
-    return [job for job in grid_jobs()
+    return [job for job in grid_jobs(protocol.family(settings.algos))
             if job.scenario in settings.scenarios and job.algo in settings.algos]
 
 
@@ -187,10 +188,10 @@ def job_cells(out: Path, job: Job, settings: Settings) -> dict[str, dict] | None
 
 
 def grid_cells(out: Path, settings: Settings) -> tuple[dict, list[str]]:
-    """Every cell of the whole grid found in ``out`` by (scenario, algo, variant), and the
-    names of the programs still missing."""
+    """Every cell of the whole grid of ``settings``' learner family found in ``out`` by
+    (scenario, algo, variant), and the names of the programs still missing."""
     cells, missing = {}, []
-    for job in grid_jobs():
+    for job in grid_jobs(protocol.family(settings.algos)):
         found = job_cells(out, job, settings)
         if found is None:
             missing.append(job.name)
@@ -215,7 +216,7 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
     # Several processes train the same programs in the same order: process 0's list.
     todo = [job for job in jobs if distributed.agree(job_cells(out, job, settings) is None)]
     seeds = settings.seeds
-    budgets = f"budgets { {a: settings.budget(a) for a in ALGOS} }, on {device_name()}"
+    budgets = f"budgets { {a: settings.budget(a) for a in settings.algos} }, on {device_name()}"
     log(f"{len(jobs) - len(todo)} of {len(jobs)} programs already done; {len(todo)} to "
         f"train ({len(seeds)} seeds per cell, {budgets})")
     progress = ProgramProgress([(job.name, job.algo,

@@ -51,6 +51,11 @@ def _cell_text(record_metric: dict, percent: bool, digits: int = 2) -> str:
     return text
 
 
+def family_of(result: dict) -> tuple[str, ...]:
+    """The learners a ``tables.json`` holds (the paper's three where it does not say)."""
+    return tuple(result.get("algos", ALGOS))
+
+
 def table(result: dict, metric: str, title: str, percent: bool, digits: int = 2) -> list[str]:
     by_key = {(r["scenario"], r["algo"], r["variant"]): r for r in result["records"]}
     controllers = {(c["scenario"], c["controller"]): c for c in result["controllers"]}
@@ -62,7 +67,7 @@ def table(result: dict, metric: str, title: str, percent: bool, digits: int = 2)
         scale, unit = (100.0, "%") if percent else (1.0, "")
         lines.append(f"| {label} | " + " | ".join(
             f"{controllers[(s, name)][metric] * scale:.2f}{unit}" for s in PAPER_SCENARIOS) + " |")
-    for algo in ALGOS:
+    for algo in family_of(result):
         for variant in VARIANTS:
             name = LEARNER_NAMES[algo] + VARIANT_SUFFIX[variant]
             cells = [_cell_text(by_key[(s, algo, variant)][metric], percent, digits)
@@ -83,15 +88,21 @@ def tables_markdown(result: dict) -> str:
     h = result["headlines"]
     p = result["paper_headlines"]
     seeds = settings["seeds"]
+    algos = family_of(result)
+    paper_family = algos == ALGOS
+    pairs = len(PAPER_SCENARIOS) * len(algos)
+    programs = 2 * pairs
+    names_text = ", ".join(LEARNER_NAMES[a] for a in algos)
     lines = [
-        "# The paper's Tables I and II, re-run with ccrjax",
+        ("# The paper's Tables I and II, re-run with ccrjax" if paper_family else
+         f"# Tables I and II for the on-policy learners ({names_text})"),
         "",
         *([protocol.quick_note(), ""] if settings.get("quick") else []),
         f"Made on {', '.join(result['devices'])} at commit(s) "
-        f"{', '.join(f'`{c}`' for c in result['commits'])}; the 18 programs' compile and "
-        f"training time add up to {duration(result['programs_seconds'])}. Invocations:",
+        f"{', '.join(f'`{c}`' for c in result['commits'])}; the {programs} programs' compile "
+        f"and training time add up to {duration(result['programs_seconds'])}. Invocations:",
         "",
-        *(invocation_line(run, 18) for run in result["invocations"]),
+        *(invocation_line(run, programs) for run in result["invocations"]),
         "",
         f"{len(seeds)} seeds per cell (seeds {seeds[0]} to {seeds[-1]}); environment steps per "
         f"run {result['budgets']}; CCR at lambda {settings['lam']:g} "
@@ -100,12 +111,15 @@ def tables_markdown(result: dict) -> str:
         f"({settings['eval_episodes']} fresh episodes per seed, deterministic policies), the "
         "mean and its 95% confidence interval over seeds (Student t, clipped to the metric's "
         "range); after a CCR cell, `↓*` / `↑*`: CCR significantly below / above plain, `↓†` / "
-        "`↑†`: below / above pessimistic (Welch, p < 0.05, each test alone: 36 of them; a "
+        f"`↑†`: below / above pessimistic (Welch, p < 0.05, each test alone: {4 * pairs} of "
+        "them; a "
         "seed's three variants share their evaluation episodes, and plain and pessimistic "
         "their initial parameters (CCR's networks also read the shared scores), a pairing "
         "these unpaired tests ignore: conservative where the variants' results "
-        "correlate); in parentheses the paper's number (IDDPG is the paper's DDPG: one "
-        "DDPG per robot). Reference rows: hand-written "
+        "correlate); "
+        + ("in parentheses the paper's number (IDDPG is the paper's DDPG: one DDPG per "
+           "robot)" if paper_family else "no paper's number: the paper trains no on-policy "
+           "learner") + ". Reference rows: hand-written "
         f"controllers over {settings['controller_episodes']} episodes (no learning).",
         "",
     ]
@@ -129,7 +143,7 @@ def tables_markdown(result: dict) -> str:
         "| | " + " | ".join(VARIANTS) + " |",
         "|---|" + "---|" * len(VARIANTS),
     ]
-    for algo in ALGOS:
+    for algo in algos:
         lines.append(f"| {LEARNER_NAMES[algo]} | " + " | ".join(
             _cell_text(by_key[("hidden_obstacle", algo, v)]["followers_closest_successful"],
                        False) for v in VARIANTS) + " |")
@@ -150,7 +164,7 @@ def tables_markdown(result: dict) -> str:
         "",
         nonfinite_text(result["nonfinite"], f"the {result['runs']} runs"),
         "",
-        "### Aggregates over the 9 scenario x learner pairs (rliable)",
+        f"### Aggregates over the {pairs} scenario x learner pairs (rliable)",
         "",
         "Interquartile mean over seeds x pairs with 95% stratified-bootstrap intervals, and "
         "the probability that a CCR run improves on a baseline run of the same pair (lower "
@@ -175,7 +189,8 @@ def tables_markdown(result: dict) -> str:
         "",
         "### The paper's headline figures, recomputed",
         "",
-        "Averages over the scenario x learner pairs (all 9, or turbulence's 3) of the "
+        f"Averages over the scenario x learner pairs (all {pairs}, or turbulence's "
+        f"{len(algos)}) of the "
         "relative change of the mean, as the paper computes them (its numbers follow from "
         "its tables this way); 95% bootstrap intervals over seeds, leaving out the "
         "resamples in which a pair's base mean is 0 (counted where there are any). Each "
@@ -183,7 +198,8 @@ def tables_markdown(result: dict) -> str:
         "enough to carry the average. The training share counts dangerous robot-steps from "
         "the start of learning.",
         "",
-        "| figure | ours | paper |",
+        "| figure | ours | paper" + ("" if paper_family else " (its off-policy learners)")
+        + " |",
         "|---|---|---|",
     ]
     names = {
@@ -197,6 +213,8 @@ def tables_markdown(result: dict) -> str:
     }
     for key, label in names.items():
         value = h[key]
+        if value is None:  # a MADDPG figure, and MADDPG is not in this family
+            continue
         ours = _interval(value)
         notes = []
         if value.get("left_out"):
@@ -207,11 +225,13 @@ def tables_markdown(result: dict) -> str:
             ours += f" ({'; '.join(notes)})"
         lines.append(f"| {label} | {ours} | {_pct(p[key])} |")
     ratio = result["obstacle_distance_ratio_maddpg"]
+    if ratio is not None:
+        lines.append(
+            "| average distance to the obstacle's centre, MADDPG+CCR / MADDPG, robot by robot "
+            f"in arrival order (hidden obstacle) | {ratio['low']:.2f}x to {ratio['high']:.2f}x "
+            f"({', '.join(f'{r:.2f}' for r in ratio['by_rank'])}) | {ratio['paper'][0]:g}x to "
+            f"{ratio['paper'][1]:g}x |")
     lines += [
-        "| average distance to the obstacle's centre, MADDPG+CCR / MADDPG, robot by robot "
-        f"in arrival order (hidden obstacle) | {ratio['low']:.2f}x to {ratio['high']:.2f}x "
-        f"({', '.join(f'{r:.2f}' for r in ratio['by_rank'])}) | {ratio['paper'][0]:g}x to "
-        f"{ratio['paper'][1]:g}x |",
         "",
         "Each pair's relative change:",
         "",
@@ -231,16 +251,16 @@ def tables_markdown(result: dict) -> str:
         "",
         "### Scorecard: do the paper's claims hold here?",
         "",
-        f"* CCR's danger below plain's in {c['danger_lower_vs_plain']['cells']} of 9 cells "
-        f"({c['danger_lower_vs_plain']['significant']} significantly, "
+        f"* CCR's danger below plain's in {c['danger_lower_vs_plain']['cells']} of {pairs} "
+        f"cells ({c['danger_lower_vs_plain']['significant']} significantly, "
         f"{c['danger_lower_vs_plain']['significant_holm']} after Holm's correction over the "
-        "9); the paper: 8 of 9.",
-        f"* below pessimistic's in {c['danger_lower_vs_pessimistic']['cells']} of 9 "
+        f"{pairs}); the paper: 8 of 9.",
+        f"* below pessimistic's in {c['danger_lower_vs_pessimistic']['cells']} of {pairs} "
         f"({c['danger_lower_vs_pessimistic']['significant']} significantly, "
         f"{c['danger_lower_vs_pessimistic']['significant_holm']} after Holm); the paper: 9 "
         "of 9.",
         f"* hidden-obstacle success above both baselines for "
-        f"{c['hidden_obstacle_success_above_both']['learners']} of 3 learners "
+        f"{c['hidden_obstacle_success_above_both']['learners']} of {len(algos)} learners "
         f"({c['hidden_obstacle_success_above_both']['significant']} significantly); the "
         "paper: 3 of 3.",
         "",

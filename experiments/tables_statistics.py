@@ -19,6 +19,7 @@ from ccrjax.run.stats import (
 )
 from ccrjax.run.sweep_grid import nonfinite_runs
 from ccrjax.training import ALGOS
+from experiments import protocol
 from experiments.ledger import settings_record
 from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, PAPER_SCENARIOS
 from experiments.tables_grid import (
@@ -49,10 +50,10 @@ HEADLINES = {
 
 def headline(cells, metric: str, new: str, base: str, sign: float,
              scenarios: tuple[str, ...] = PAPER_SCENARIOS, resamples: int = 2000,
-             seed: int = 0) -> dict[str, Any]:
-    """The paper's averaged relative change over the ``scenarios``' scenario x learner
-    pairs (:func:`ccrjax.run.stats.mean_relative_change`), with the pairs named."""
-    names = [(s, a) for s in scenarios for a in ALGOS]
+             seed: int = 0, algos: tuple[str, ...] = ALGOS) -> dict[str, Any]:
+    """The paper's averaged relative change over the ``scenarios`` x ``algos`` pairs
+    (:func:`ccrjax.run.stats.mean_relative_change`), with the pairs named."""
+    names = [(s, a) for s in scenarios for a in algos]
     pairs = [(np.asarray(cells[(s, a, new)]["final"][metric]),
               np.asarray(cells[(s, a, base)]["final"][metric])) for s, a in names]
     result = mean_relative_change(pairs, sign, resamples=resamples, seed=seed)
@@ -71,11 +72,11 @@ def obstacle_distance_ratio(cells) -> dict[str, Any]:
             "paper": list(PAPER_OBSTACLE_DISTANCE_RATIO)}
 
 
-def welch_marks(cells) -> dict[tuple[str, str, str, str], dict]:
+def welch_marks(cells, algos: tuple[str, ...] = ALGOS) -> dict[tuple[str, str, str, str], dict]:
     """Welch tests of CCR against plain and pessimistic, per cell and metric."""
     marks = {}
     for scenario in PAPER_SCENARIOS:
-        for algo in ALGOS:
+        for algo in algos:
             ccr = cells[(scenario, algo, "ccr")]["final"]
             for base in ("plain", "pessimistic"):
                 other = cells[(scenario, algo, base)]["final"]
@@ -84,13 +85,14 @@ def welch_marks(cells) -> dict[tuple[str, str, str, str], dict]:
     return marks
 
 
-def claims(cells, marks) -> dict[str, Any]:
-    """The direction of the paper's claims, checked cell by cell (the scorecard)."""
+def claims(cells, marks, algos: tuple[str, ...] = ALGOS) -> dict[str, Any]:
+    """The direction of the paper's claims, checked cell by cell over the ``algos``' pairs
+    (the scorecard)."""
     result: dict[str, Any] = {}
     for base in ("plain", "pessimistic"):
         lower, significant, detail = 0, 0, []
         for scenario in PAPER_SCENARIOS:
-            for algo in ALGOS:
+            for algo in algos:
                 ccr = float(np.mean(cells[(scenario, algo, "ccr")]["final"]["danger_frequency"]))
                 other = float(np.mean(cells[(scenario, algo, base)]["final"]["danger_frequency"]))
                 is_lower = ccr < other
@@ -100,7 +102,7 @@ def claims(cells, marks) -> dict[str, Any]:
                 significant += is_significant
                 detail.append({"scenario": scenario, "algo": algo, "ccr": ccr, base: other,
                                "lower": is_lower, "significant": is_significant})
-        # The 9 cells' tests as one family (Holm): how many lower cells survive it.
+        # The cells' tests as one family (Holm): how many lower cells survive it.
         p_values = [marks[(d["scenario"], d["algo"], base, "danger_frequency")]["p"]
                     for d in detail]
         for d, rejected in zip(detail, holm(p_values), strict=True):
@@ -108,9 +110,9 @@ def claims(cells, marks) -> dict[str, Any]:
         result[f"danger_lower_vs_{base}"] = {
             "cells": lower, "significant": significant,
             "significant_holm": sum(d["significant_holm"] for d in detail),
-            "of": 9, "detail": detail}
+            "of": len(detail), "detail": detail}
     raised = []
-    for algo in ALGOS:
+    for algo in algos:
         ccr = float(np.mean(cells[("hidden_obstacle", algo, "ccr")]["final"]["success_rate"]))
         both = []
         for base in ("plain", "pessimistic"):
@@ -124,19 +126,19 @@ def claims(cells, marks) -> dict[str, Any]:
     result["hidden_obstacle_success_above_both"] = {
         "learners": sum(r["above_both"] for r in raised),
         "significant": sum(r["significantly_above_both"] for r in raised),
-        "of": 3, "detail": raised}
+        "of": len(raised), "detail": raised}
     return result
 
 
-def aggregates(cells, resamples: int = 2000) -> dict[str, Any]:
-    """rliable over the 9 scenario x learner pairs (tasks), seeds as runs: each variant's
-    IQM of danger and of success, and the probability that CCR improves on each baseline
-    (lower danger, higher success)."""
-    pairs = [(s, a) for s in PAPER_SCENARIOS for a in ALGOS]
+def aggregates(cells, resamples: int = 2000, algos: tuple[str, ...] = ALGOS) -> dict[str, Any]:
+    """rliable over the scenario x learner pairs of ``algos`` (tasks), seeds as runs: each
+    variant's IQM of danger and of success, and the probability that CCR improves on each
+    baseline (lower danger, higher success)."""
+    pairs = [(s, a) for s in PAPER_SCENARIOS for a in algos]
     result: dict[str, Any] = {}
     for metric, sign in (("danger_frequency", -1.0), ("success_rate", 1.0)):
         scores = {v: np.array([cells[(s, a, v)]["final"][metric] for s, a in pairs]).T
-                  for v in VARIANTS}  # [seeds, 9]
+                  for v in VARIANTS}  # [seeds, pairs]
         result[metric] = {
             "iqm": iqm(scores, resamples=resamples),
             "probability_of_improvement": {
@@ -160,11 +162,13 @@ def training_danger_share(cells) -> dict[str, Any]:
 
 def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
             controllers: dict, sources: dict[str, str]) -> dict[str, Any]:
-    """Everything ``tables.json`` holds."""
-    marks = welch_marks(cells)
+    """Everything ``tables.json`` holds, over the pairs of ``settings``' learner family (the
+    MADDPG figures of the paper only where MADDPG is among them)."""
+    algos = protocol.family(settings.algos)
+    marks = welch_marks(cells, algos)
     records = []
     for scenario in PAPER_SCENARIOS:
-        for algo in ALGOS:
+        for algo in algos:
             for variant in VARIANTS:
                 cell = cells[(scenario, algo, variant)]
                 record = {"scenario": scenario, "algo": algo, "variant": variant,
@@ -190,13 +194,17 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
                         "per_seed": values, **mean_ci(values),
                         "seeds_measured": f"{len(measured)}/{len(cell['seeds'])}"}
                 records.append(record)
-    headlines = {key: headline(cells, *definition) for key, definition in HEADLINES.items()}
-    headlines["training_danger_share_maddpg_hidden_obstacle"] = training_danger_share(cells)
+    headlines = {key: headline(cells, *definition, algos=algos)
+                 for key, definition in HEADLINES.items()}
+    maddpg = "maddpg" in algos
+    headlines["training_danger_share_maddpg_hidden_obstacle"] = (
+        training_danger_share(cells) if maddpg else None)
     programs = {(c["scenario"], c["algo"], c["variant"] == "ccr"): c for c in cells.values()}
     return {
         "settings": settings_record(settings),
         "sources": sources,
-        "budgets": {a: settings.budget(a) for a in ALGOS},
+        "algos": list(algos),
+        "budgets": {a: settings.budget(a) for a in algos},
         "invocations": invocations,
         "programs_seconds": sum(c["train_seconds_of_program"] + c["compile_seconds_of_program"]
                                 for c in programs.values()),
@@ -210,8 +218,8 @@ def summary(cells, settings: Settings, invocations: list[dict[str, Any]],
         "runs": sum(len(cell["seeds"]) for cell in cells.values()),
         "headlines": headlines,
         "paper_headlines": PAPER_HEADLINES,
-        "obstacle_distance_ratio_maddpg": obstacle_distance_ratio(cells),
-        "aggregates": aggregates(cells),
-        "claims": claims(cells, marks),
+        "obstacle_distance_ratio_maddpg": obstacle_distance_ratio(cells) if maddpg else None,
+        "aggregates": aggregates(cells, algos=algos),
+        "claims": claims(cells, marks, algos),
     }
 

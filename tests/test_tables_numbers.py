@@ -27,12 +27,14 @@ def report():
     return importlib.import_module("experiments.tables_report")
 
 
-def made_up_cells(tables, danger, success) -> dict:
-    """Cells of every scenario x learner x variant; ``danger(scenario, algo, variant)`` and
-    ``success(...)`` give each cell's per-seed values."""
+def made_up_cells(tables, danger, success, algos=None) -> dict:
+    """Cells of every scenario x learner (``algos``, default the paper's three) x variant;
+    ``danger(scenario, algo, variant)`` and ``success(...)`` give each cell's per-seed
+    values."""
     return {(s, a, v): {"final": {"danger_frequency": list(danger(s, a, v)),
                                   "success_rate": list(success(s, a, v))}}
-            for s in tables.PAPER_SCENARIOS for a in tables.ALGOS for v in tables.VARIANTS}
+            for s in tables.PAPER_SCENARIOS for a in (algos or tables.ALGOS)
+            for v in tables.VARIANTS}
 
 
 def test_the_paper_headlines_follow_from_its_tables(tables):
@@ -161,3 +163,30 @@ def test_the_plateau_table_shows_how_far_each_plain_curve_moved(report):
     zero = report.plateau_table([{"scenario": "turbulence", "algo": "maac",
                                   "return_plateau": plateau_or_undetermined(flat * 0)}])
     assert zero[2].endswith("| +0.00 | yes |")
+
+
+def test_the_on_policy_familys_numbers_run_over_its_own_six_pairs(tables):
+    """IPPO and MAPPO (docs/protocol.md, amendment of 2026-12-02): the scorecard, the
+    aggregates and the headline averages over their 6 pairs, the paper's learners absent."""
+    family = ("ippo", "mappo")
+
+    def danger(s, a, v):
+        if v == "ccr" and a == "mappo":
+            return [0.05, 0.06, 0.05]
+        return [0.20, 0.21, 0.19]
+
+    cells = made_up_cells(tables, danger, lambda s, a, v: [0.9, 0.9, 0.9], family)
+    card = tables.claims(cells, tables.welch_marks(cells, family), family)
+    plain = card["danger_lower_vs_plain"]
+    assert (plain["cells"], plain["significant"], plain["of"]) == (3, 3, 6)
+    assert {d["algo"] for d in plain["detail"] if d["lower"]} == {"mappo"}
+    assert card["hidden_obstacle_success_above_both"]["of"] == 2
+    result = tables.aggregates(cells, resamples=200, algos=family)
+    assert result["danger_frequency"]["probability_of_improvement"]["plain"][
+        "probability"] == pytest.approx(0.5 + 0.5 * 3 / 6)  # half the pairs all better
+    change = tables.headline(cells, *tables.HEADLINES["danger_reduction_vs_plain"],
+                             algos=family)
+    assert change["pair_names"] == [f"{name}, {learner}" for name in
+                                    ("hidden obstacle", "turbulence", "strong wind")
+                                    for learner in ("IPPO", "MAPPO")]
+    assert change["mean"] == pytest.approx(np.mean([0.0, 1 - 0.16 / 0.6] * 3), rel=1e-9)
