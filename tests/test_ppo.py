@@ -4,6 +4,7 @@ input, and the learners inside the training program at a tiny size."""
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import jax
 import jax.numpy as jnp
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from ccrjax.agents import ppo_losses as losses
+from ccrjax.agents.networks import orthogonal
 from ccrjax.agents.ppo import PPO, PPOConfig
 from ccrjax.agents.types import Transition
 from ccrjax.training import TrainConfig, make_train, run_episode
@@ -260,3 +262,25 @@ def test_ippo_and_mappo_improve_their_return_with_a_hazard(algo):
           f"success {history['success_rate'][:, -1]}")
     # Returns are negative distances summed over the episode: improving = closer to 0.
     assert np.all(final > initial + 0.3 * np.abs(initial)), (initial, final)
+
+
+@pytest.mark.parametrize("shape", [(64, 64), (30, 64), (64, 2), (3, 4, 5)])
+def test_the_orthogonal_initialisation_is_jaxs_without_a_lapack_call(shape):
+    """The networks' orthogonal kernels equal jax's initializer's to float rounding, with
+    orthonormal rows or columns, and a grid of seeds initialises them without the batched QR
+    custom call that can deadlock XLA's CPU thread pool."""
+    key = jax.random.PRNGKey(7)
+    ours = orthogonal(1.5)(key, shape)
+    np.testing.assert_allclose(ours, jax.nn.initializers.orthogonal(1.5)(key, shape),
+                               atol=5e-6)
+    matrix = np.asarray(ours).reshape(-1, shape[-1]) / 1.5
+    small = min(matrix.shape)
+    gram = matrix.T @ matrix if matrix.shape[0] >= matrix.shape[1] else matrix @ matrix.T
+    np.testing.assert_allclose(gram, np.eye(small), atol=5e-6)
+    def primitives(initializer) -> set[str]:
+        text = str(jax.make_jaxpr(jax.vmap(lambda k: initializer(k, shape)))(
+            jax.random.split(key, 4)))
+        return set(re.findall(r"= ([a-z_]+)\[", text))
+
+    assert "qr" in primitives(jax.nn.initializers.orthogonal(1.0))  # what is avoided
+    assert "qr" not in primitives(orthogonal(1.0))

@@ -46,7 +46,7 @@ import optax
 from flax import struct
 
 from ccrjax.agents import ppo_losses as losses
-from ccrjax.agents.networks import init_per_robot, mlp_flops
+from ccrjax.agents.networks import init_per_robot, mlp_flops, orthogonal
 from ccrjax.agents.types import Transition
 from ccrjax.checks import check_choice, check_finite, check_hidden, check_positive_int
 from ccrjax.envs.world import DEFAULT_DISCRETE_ACTION_SET, DISCRETE_ACTION_SETS
@@ -111,8 +111,9 @@ class PPOConfig:
 
 
 class PPONetwork(nn.Module):
-    """A tanh MLP with orthogonal initialisation; with ``log_std``, it also owns the
-    Gaussian policy's state-independent log standard deviation."""
+    """A tanh MLP with orthogonal initialisation (:func:`networks.orthogonal`, computed
+    without LAPACK so that a grid of seeds cannot deadlock on CPU); with ``log_std``, it also
+    owns the Gaussian policy's state-independent log standard deviation."""
 
     hidden: tuple[int, ...]
     out: int
@@ -122,8 +123,8 @@ class PPONetwork(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
         for width in self.hidden:
-            x = nn.tanh(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2.0)))(x))
-        head = nn.Dense(self.out, kernel_init=nn.initializers.orthogonal(self.head_gain))(x)
+            x = nn.tanh(nn.Dense(width, kernel_init=orthogonal(np.sqrt(2.0)))(x))
+        head = nn.Dense(self.out, kernel_init=orthogonal(self.head_gain))(x)
         if self.log_std is None:
             return head, jnp.zeros((), head.dtype)
         log_std = self.param("log_std", nn.initializers.constant(self.log_std), (self.out,))
