@@ -12,8 +12,8 @@ hidden obstacle, with its continuous actions (the default) and with ``box9`` (di
 JaxMARL's). Matched: the training environments per seed (ccrjax's default, 160), rollouts
 of one 25-step episode, 5 robots, 4 epochs of 4 minibatches (5,000 robot-steps each),
 64-64 tanh actor and critic, one seed and three in one vmapped program (JaxMARL's
-program vmapped over 5 or more seeds compiled, then waited forever on a 2-core CPU with
-jax 0.10.2: every thread blocked, no CPU used; 3 ran). Not matched, and said
+program vmapped over 5 or more seeds compiled, then deadlocked on a 2-core CPU with jax
+0.10.2, in the batched QR of its orthogonal initialisation; 3 ran). Not matched, and said
 in the table: JaxMARL's networks see no robot index (ccrjax's shared ones get a one-hot), it
 anneals its learning rate and adds an entropy bonus (arithmetic of a few scalars per
 update), and logs through an ``io_callback`` after every update (a host round trip per
@@ -72,8 +72,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the peer's interpreter (default: benchmarks/.peer-venv's)")
     parser.add_argument("--seeds", nargs="+", type=cli.int_in(1, 1024), default=[1, 3],
                         help="seeds trained at once, one program each (default: 1 3; "
-                        "JaxMARL's program vmapped over 5 or more seeds compiles but never "
-                        "finishes on a 2-core CPU with jax 0.10.2)")
+                        "JaxMARL's program vmapped over 5 or more seeds deadlocks on a 2-core "
+                        "CPU with jax 0.10.2, in its initialisation's batched QR)")
     parser.add_argument("--updates", type=cli.positive_int, default=20,
                         help="training iterations per timed call (default: %(default)s)")
     parser.add_argument("--repeats", type=cli.positive_int, default=5,

@@ -16,8 +16,8 @@ has no baselines), whose ``make_train(config) -> train(key)`` is called as its o
 ``main`` calls it, at sizes matched to ccrjax's IPPO defaults: ``--ippo-envs`` training
 environments (160), rollouts of one 25-step episode, 5 agents and 5 landmarks, 4 epochs of
 4 minibatches, its 64-64 tanh actor and critic, one seed and three (``vmap`` over keys, as its
-``main`` does; vmapped over 5 or more seeds it compiled, then waited forever on a 2-core CPU
-with jax 0.10.2, its logging callback removed or not); everything else as its
+``main`` does; vmapped over 5 or more seeds it compiled, then deadlocked on a 2-core CPU with
+jax 0.10.2, in the batched QR of its orthogonal initialisation); everything else as its
 ``ippo_ff_mpe.yaml`` sets it (discrete actions, a learning rate annealed over the run). It
 imports ``hydra``, ``wandb`` and ``omegaconf`` for its command line and logging only; where
 they are not installed, inert stand-ins take their place (its per-update ``io_callback``
