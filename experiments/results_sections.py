@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from ccrjax.training import ALGOS
+from experiments.budgets import on_policy_lines
 from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_SCENARIOS
 from experiments.regimes import chosen_regime_lines
 from experiments.tables_grid import LEARNER_NAMES, SCENARIO_NAMES, VARIANTS
@@ -237,7 +238,8 @@ def budgets_section(budgets: dict[str, dict[str, Any]]) -> list[str]:
                  + ("" if c["plateaued_at_budget"] else " (not levelled off at the budget)")
                  for c in result["cells"]]
         lines.append(f"* [`{folder}/`]({folder}/budgets.md), on {what}, candidates up to "
-                     f"{budgets_text(result['budgets'])}: " + "; ".join(cells) + ".")
+                     f"{budgets_text(result['budgets'])}: " + "; ".join(cells) + "."
+                     + "".join(f" {line}" for line in on_policy_lines(result) if line))
     return lines + [""]
 
 
