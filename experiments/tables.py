@@ -5,6 +5,9 @@
     python experiments/tables.py --quick --out /tmp/q     # a tiny budget, for the tests
     python experiments/tables.py --algos maac --scenarios turbulence --out runs/lane1
                                   # part of the grid; the tables once all 18 programs exist
+    python experiments/tables.py --algos ippo mappo --out experiments/results/tables_on_policy \
+        --force                   # the on-policy family's 12 programs and tables, with its
+                                  # own searches (experiments/results/search_on_policy)
 
 Trains the grid 3 scenarios x 3 learners x 3 variants (plain, pessimistic, CCR) under the
 protocol of ``docs/protocol.md`` (``experiments/protocol.py``): the tables' seeds 0-9, each
