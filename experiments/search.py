@@ -328,7 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "search/<variant> (the on-policy learners': "
-                    "search_on_policy/<variant>)", default_text="runs/search/<variant>")
+                    "search_on_policy/<variant>)",
+                    default_text="runs/search/<variant>, the on-policy learners' "
+                    "runs/search_on_policy/<variant>")
     add_checkpoint_option(parser)
     add_no_train_option(parser)
     distributed.add_options(parser)
@@ -365,7 +367,8 @@ def settings_from(args: argparse.Namespace) -> Settings:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     distributed.initialize(PROG, args)
-    out = args.out or Path("runs/search") / args.variant
+    on_policy = set(args.algos) <= set(protocol.ON_POLICY_ALGOS)  # a family's own folder
+    out = args.out or Path("runs/search_on_policy" if on_policy else "runs/search") / args.variant
 
     def settings_of() -> Settings:
         check_quick_out(args.quick, args.out)
