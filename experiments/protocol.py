@@ -79,7 +79,7 @@ BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 ON_POLICY_CHECK_STEPS = {"ippo": 4_000_000, "mappo": 4_000_000}
 # Their family's budget, by the amendment's rule from that run; None until it is chosen
 # (their searches are provisional until then).
-ON_POLICY_BUDGET: int | None = None
+ON_POLICY_BUDGET: int | None = 3_000_000
 LONGER_BUDGETS = {"iddpg": 6_000_000, "maddpg": 6_000_000, "maac": 6_000_000}
 # The constrained baseline's budget (docs/protocol.md, amendment of 2026-12-02): chosen on
 # the plain learners' budgets curves (90% of their mean success at 3M over the 9 pairs), for
