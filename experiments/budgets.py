@@ -15,10 +15,10 @@ evaluations lies within the 95% interval of the 20% before). The proposed budget
 smallest candidate from which on every larger candidate plateaus too, ``None`` if the
 return is still moving at ``--steps``.
 
-``--algos ippo mappo --candidate-every 500000`` is the on-policy learners' budgets run
-(``docs/protocol.md``, amendment of 2026-12-02, "the on-policy learners"): 4M steps each
-(their budget is not chosen yet), and the summary's last line gives their family's budget,
-the largest proposed by their six cells, once those exist.
+``--algos ippo mappo --candidate-every 500000 --steps 4000000`` is the on-policy learners'
+budgets run (``docs/protocol.md``, amendment of 2026-12-02, "the on-policy learners"); the
+summary's last line gives their family's budget, the largest proposed by their six cells
+(``protocol.ON_POLICY_BUDGET`` holds the one it gave).
 
 ``--tables-seeds`` runs the longer-budget check of ``docs/protocol.md`` (its amendment of
 2026-11-26): the plain learners alone on the tables' seeds 0-9, 6M steps by default, checked

@@ -73,19 +73,16 @@ BUDGETS = {"iddpg": 3_000_000, "maddpg": 3_000_000, "maac": 3_000_000}
 # longer-budget check's rule, on the plain learners alone, gave 6M steps for every learner.
 # Both searches and all 18 table programs at it are the protocol's too, reported beside the
 # 3M tables (not instead of them); the tables at one budget take the searches at the same.
-# The on-policy learners' budgets run (amendment of 2026-12-02, "the on-policy learners"):
-# the plain IPPO and MAPPO train this long on the budget seeds, and their budget is chosen
-# from it; until it is, this is what experiments/budgets.py trains them for.
-ON_POLICY_CHECK_STEPS = {"ippo": 4_000_000, "mappo": 4_000_000}
-# Their family's budget, by the amendment's rule from that run; None until it is chosen
-# (their searches are provisional until then).
-ON_POLICY_BUDGET: int | None = 3_000_000
 LONGER_BUDGETS = {"iddpg": 6_000_000, "maddpg": 6_000_000, "maac": 6_000_000}
 # The constrained baseline's budget (docs/protocol.md, amendment of 2026-12-02): chosen on
 # the plain learners' budgets curves (90% of their mean success at 3M over the 9 pairs), for
 # every learner; above the replay capacity, so the other variants' cells at it are the 6M
 # runs' evaluations there.
 LAGRANGIAN_BUDGET = 2_000_000
+# The on-policy learners' budget (amendment of 2026-12-02, "the on-policy learners"): the
+# largest budget proposed by their six plain cells of the budgets run (4M steps, seeds
+# 200-202, experiments/results/budgets_on_policy/), for IPPO and MAPPO alike.
+ON_POLICY_BUDGET = 3_000_000
 EVAL_EVERY = 100_000
 EVAL_EPISODES = 64
 
@@ -121,13 +118,10 @@ def budgets_text() -> str:
 
 
 def budget(algo: str, steps: int | None) -> int:
-    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``
-    (for a learner whose budget is not chosen yet, the length of its budgets run)."""
+    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``."""
     if steps is not None:
         return steps
-    if algo in ON_POLICY_ALGOS:
-        return ON_POLICY_CHECK_STEPS[algo] if ON_POLICY_BUDGET is None else ON_POLICY_BUDGET
-    return BUDGETS[algo]
+    return ON_POLICY_BUDGET if algo in ON_POLICY_ALGOS else BUDGETS[algo]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -183,8 +183,6 @@ def not_the_protocols(settings: Settings) -> str | None:
         *(["the quick mode"] if settings.quick else []),
         *([f"{len(left_out)} of {pairs} pairs not summarised ({', '.join(left_out)})"]
           if left_out else []),
-        *(["the on-policy learners' budget is not chosen yet"]
-          if family == protocol.ON_POLICY_ALGOS and protocol.ON_POLICY_BUDGET is None else []),
         *(["the amendment of 2026-12-02 searches no Lagrangian for the on-policy learners"]
           if family == protocol.ON_POLICY_ALGOS and settings.variant == "lagrangian"
           else []),
@@ -203,9 +201,9 @@ def protocol_budgets(variant: str, family: tuple[str, ...] = ALGOS) -> list[dict
     """The budgets at which ``variant``'s search of the learners ``family`` is the
     protocol's: the off-policy Lagrangian's at its amendment's budget, the other off-policy
     searches at the protocol's budgets or its longer ones, the on-policy ones at their
-    family's budget (none before it is chosen, nor for a Lagrangian)."""
+    family's budget (none for a Lagrangian, which the amendment does not search there)."""
     if family == protocol.ON_POLICY_ALGOS:
-        if protocol.ON_POLICY_BUDGET is None or variant == "lagrangian":
+        if variant == "lagrangian":
             return []
         return [{algo: protocol.ON_POLICY_BUDGET for algo in family}]
     if variant == "lagrangian":

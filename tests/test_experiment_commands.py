@@ -326,13 +326,12 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     assert search.not_the_protocols(dataclasses.replace(full, steps=6_000_000)) is None
     assert "--steps 1000000" in search.not_the_protocols(
         dataclasses.replace(full, steps=1_000_000))
-    # The on-policy family (amendment of 2026-12-02): its own 6 pairs, at its own budget,
-    # which its budgets run chooses; until then its selections are provisional.
+    # The on-policy family (amendment of 2026-12-02): its own 6 pairs, at its own budget.
     on_policy = dataclasses.replace(full, algos=("ippo", "mappo"))
-    monkeypatch.setattr(search.protocol, "ON_POLICY_BUDGET", None)
-    assert "budget is not chosen yet" in search.not_the_protocols(on_policy)
-    monkeypatch.setattr(search.protocol, "ON_POLICY_BUDGET", 2_000_000)
     assert search.not_the_protocols(on_policy) is None
+    monkeypatch.setattr(search.protocol, "ON_POLICY_BUDGET", 2_000_000)  # another budget
+    assert "--steps 3000000" in search.not_the_protocols(
+        dataclasses.replace(on_policy, steps=3_000_000))
     assert "3 of 6 pairs not summarised" in search.not_the_protocols(
         dataclasses.replace(on_policy, algos=("ippo",)))
     assert "--steps 1000000" in search.not_the_protocols(
