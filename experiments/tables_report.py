@@ -20,6 +20,7 @@ from experiments.tables_grid import (
     SCENARIO_NAMES,
     VARIANT_SUFFIX,
     VARIANTS,
+    grid_jobs,
 )
 from experiments.tables_statistics import HEADLINES
 
@@ -91,7 +92,7 @@ def tables_markdown(result: dict) -> str:
     algos = family_of(result)
     paper_family = algos == ALGOS
     pairs = len(PAPER_SCENARIOS) * len(algos)
-    programs = 2 * pairs
+    programs = len(grid_jobs(algos))
     names_text = ", ".join(LEARNER_NAMES[a] for a in algos)
     lines = [
         ("# The paper's Tables I and II, re-run with ccrjax" if paper_family else
