@@ -2,8 +2,9 @@
 on every one of three seeds (trained side by side in one vmapped program), so that no
 single lucky seed makes the test pass.
 
-The budget is small enough for the suite (well under a minute per learner on 2 cores):
-smaller networks and batches than the defaults, more updates per environment step.
+The budget is small (well under a minute per learner on 2 cores): smaller networks and
+batches than the defaults, more updates per environment step. The checks run with the slow
+ones (``make test-slow``), beside the on-policy learners' learning checks.
 The full-size check, success on `nominal` at the default budget, is
 ``experiments/sanity.py``.
 """
@@ -39,6 +40,7 @@ def train_seeds(config: TrainConfig):
     return state, {name: np.asarray(values) for name, values in history.items()}
 
 
+@pytest.mark.slow  # a training program per learner: about 35 s each of the fast suite
 @pytest.mark.parametrize("algo", ["iddpg", "maddpg"])
 def test_ddpg_family_improves_its_return(algo):
     config = TrainConfig(

@@ -439,6 +439,7 @@ LEARNING = TrainConfig(
 )
 
 
+@pytest.mark.slow  # a whole training program over 3 seeds: about 30 s of the fast suite
 def test_maac_learns_to_reach_the_destination():
     program = make_train(LEARNING)
     keys = jnp.stack([jax.random.PRNGKey(seed) for seed in (0, 1, 2)])
