@@ -20,6 +20,11 @@ budgets run (``docs/protocol.md``, amendment of 2026-12-02, "the on-policy learn
 summary's last line gives their family's budget, the largest proposed by their six cells
 (``protocol.ON_POLICY_BUDGET`` holds the one it gave).
 
+``--regime column --algos maddpg --scenarios hidden_obstacle turbulence`` is the study's
+budgets run in the column regime (amendment of 2026-12-01 and its addition): the
+candidates 1.2M, 2.4M and 3M at an evaluation every 120,000 steps, and the summary's last
+line gives the regime's budget (the smallest candidate at which both cells level off).
+
 ``--tables-seeds`` runs the longer-budget check of ``docs/protocol.md`` (its amendment of
 2026-11-26): the plain learners alone on the tables' seeds 0-9, 6M steps by default, checked
 at the candidates 3M, 4.5M and 6M; the budget for all is the smallest candidate at which
@@ -239,6 +244,17 @@ def seeds_text(seeds: list[int]) -> str:
     return f"Budget seeds {seeds}"
 
 
+def regime_text(settings: dict[str, Any]) -> str:
+    """The regime a summary's cells were trained in, if not the tables' (nothing then)."""
+    regime = settings.get("regime", protocol.DEFAULT_REGIME)
+    if regime == protocol.DEFAULT_REGIME:
+        return ""
+    return (f"; regime `{regime}` (docs/protocol.md, amendment of 2026-12-01: "
+            f"{protocol.REGIMES[regime].episode_length}-step episodes, layout "
+            + ", ".join(f"{k} {v}" for k, v in protocol.REGIMES[regime].layout_params.items())
+            + ")")
+
+
 def candidates_text(settings: dict[str, Any]) -> str:
     named = settings.get("candidate_budgets") or ()
     if named:
@@ -269,21 +285,27 @@ def rule_lines(result: dict[str, Any]) -> list[str]:
                          f"({check['last'] - check['previous']:+.2f})")
         lines.append(f"| {cell['algo']} | {cell['scenario']} | " + " | ".join(shown) + " |")
     made = {(cell["scenario"], cell["algo"]) for cell in cells}
-    wanted = {(s, a) for s in PAPER_SCENARIOS for a in ALGOS}
+    regime = result["settings"].get("regime", protocol.DEFAULT_REGIME)
+    if regime == protocol.DEFAULT_REGIME:
+        wanted = {(s, a) for s in PAPER_SCENARIOS for a in ALGOS}
+        name = "One budget for all"
+    else:  # the study's budget in its regime (amendment of 2026-12-01)
+        wanted = {(s, a) for s in protocol.STUDY_SCENARIOS for a in protocol.STUDY_ALGOS}
+        name = f"The `{regime}` regime's budget"
     lines.append("")
     if not wanted <= made:
-        lines.append(f"One budget for all (the smallest candidate at which every plain "
+        lines.append(f"{name} (the smallest candidate at which every plain "
                      f"learner's check passes): not yet, {len(wanted & made)} of the "
                      f"{len(wanted)} scenario x learner cells are made.")
         return lines
     rule = one_budget_for_all([cell for cell in cells if (cell["scenario"], cell["algo"])
                                in wanted])
     if rule["passed"]:
-        lines.append(f"One budget for all (the smallest candidate at which every plain "
+        lines.append(f"{name} (the smallest candidate at which every plain "
                      f"learner's check passes): **{rule['budget']:,}** steps.")
     else:
         failing = rule["failing"][rule["budget"]]
-        lines.append(f"One budget for all: no candidate passes for every plain learner, so "
+        lines.append(f"{name}: no candidate passes for every plain learner, so "
                      f"**{rule['budget']:,}** steps, flagged: at it the check fails for "
                      f"{', '.join(failing)}.")
     return lines
@@ -295,7 +317,7 @@ def budgets_markdown(result: dict[str, Any]) -> str:
         "# Budgets of the plain learners",
         "",
         *([protocol.quick_note(variants=False), ""] if settings.get("quick") else []),
-        f"{seeds_text(settings['seeds'])}; environment steps per seed: "
+        f"{seeds_text(settings['seeds'])}{regime_text(settings)}; environment steps per seed: "
         + ", ".join(f"{steps:,} ({algo})" for algo, steps in result["budgets"].items()) + "; "
         f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "
         f"episodes per seed; {candidates_text(settings)}. "
@@ -378,6 +400,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "checked at the candidates "
                         + ", ".join(f"{c:,}" for c in LONGER_CANDIDATES)
                         + " (not with --candidate-every)")
+    parser.add_argument("--regime", choices=tuple(protocol.REGIMES),
+                        default=protocol.DEFAULT_REGIME,
+                        help="the hazards' placement, the team's formation and the episode "
+                        "length (docs/protocol.md, amendment of 2026-12-01; default: "
+                        f"{protocol.DEFAULT_REGIME}, the tables'); another regime checks its "
+                        "own candidate budgets at its own evaluation interval (column: "
+                        + ", ".join(f"{c:,}" for c in protocol.REGIMES["column"].budget_candidates)
+                        + f" every {protocol.REGIMES['column'].eval_every:,} steps; not with "
+                        "--candidate-every or --tables-seeds)")
     parser.add_argument("--eval-episodes", type=cli.positive_int, default=None,
                         help="fresh episodes per evaluation and seed (default: "
                         f"{protocol.EVAL_EPISODES})")
@@ -390,6 +421,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def settings_from(args: argparse.Namespace) -> Settings:
+    regime = protocol.REGIMES[args.regime]
+    other_regime = args.regime != protocol.DEFAULT_REGIME
+    if other_regime and (args.tables_seeds or args.candidate_every is not None):
+        given = "--tables-seeds" if args.tables_seeds else "--candidate-every"
+        raise cli.UsageError(f"--regime {args.regime} checks its own candidate budgets "
+                             f"(docs/protocol.md); leave out {given}")
     if args.tables_seeds:
         given = [name for name, value in (("--seeds", args.seeds),
                                           ("--seed-offset", args.seed_offset),
@@ -411,9 +448,11 @@ def settings_from(args: argparse.Namespace) -> Settings:
                     if "tables'" in problem else "")
             raise cli.UsageError(problem + hint)
     # --quick changes the defaults (tiny sizes); what is given on the command line stays.
-    defaults = ({"steps": 10 * protocol.QUICK_STEPS, "eval_every": protocol.QUICK_EVAL_EVERY,
+    scale = regime.quick_scale
+    defaults = ({"steps": 10 * protocol.QUICK_STEPS * scale,
+                 "eval_every": protocol.QUICK_EVAL_EVERY * scale,
                  "eval_episodes": protocol.QUICK_EVAL_EPISODES,
-                 "candidate_every": QUICK_CANDIDATE_EVERY} if args.quick else
+                 "candidate_every": QUICK_CANDIDATE_EVERY * scale} if args.quick else
                 {"steps": None, "eval_every": protocol.EVAL_EVERY,
                  "eval_episodes": protocol.EVAL_EPISODES, "candidate_every": CANDIDATE_EVERY})
     fields: dict[str, Any] = {
@@ -422,8 +461,13 @@ def settings_from(args: argparse.Namespace) -> Settings:
     if args.tables_seeds:
         fields.update(candidate_budgets=LONGER_CANDIDATES,
                       steps=LONGER_STEPS if args.steps is None else args.steps)
+    if other_regime and not args.quick:
+        fields.update(candidate_budgets=regime.budget_candidates,
+                      steps=max(regime.budget_candidates) if args.steps is None else args.steps,
+                      eval_every=regime.eval_every if args.eval_every is None
+                      else args.eval_every)
     fields.update(seeds=seeds, quick=args.quick, scenarios=tuple(dict.fromkeys(args.scenarios)),
-                  algos=tuple(dict.fromkeys(args.algos)))
+                  algos=tuple(dict.fromkeys(args.algos)), regime=args.regime)
     settings = Settings(**fields)
     for scenario in settings.scenarios:  # every configuration validated before compiling
         for algo in settings.algos:

@@ -119,8 +119,13 @@ class Partial:
 
 def settings_record(settings: Any) -> dict[str, Any]:
     """``settings`` (a dataclass) as it reads back from JSON (tuples become lists), so that
-    a record on disk compares equal to the settings that made it."""
-    return json.loads(json.dumps(dataclasses.asdict(settings)))
+    a record on disk compares equal to the settings that made it. The default regime is
+    left out, so that the records of the paper's experiments are those made before
+    regimes were settings."""
+    record = json.loads(json.dumps(dataclasses.asdict(settings)))
+    if record.get("regime") == protocol.DEFAULT_REGIME:
+        del record["regime"]
+    return record
 
 
 # Settings that choose which cells an invocation makes, or how they are summarised, but
@@ -183,6 +188,7 @@ def expected_training(cell: dict[str, Any], record: dict[str, Any]) -> dict[str,
     variant = cell.get("variant") or record.get("variant") or "plain"
     settings = protocol.Settings(seeds=tuple(record.get("seeds", ())), steps=record.get("steps"),
                                  quick=record.get("quick", False),
+                                 regime=record.get("regime", protocol.DEFAULT_REGIME),
                                  eval_every=record["eval_every"],
                                  eval_episodes=record["eval_episodes"])
     return training_record(protocol.run_config(settings, cell["scenario"], cell["algo"],

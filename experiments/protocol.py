@@ -85,6 +85,50 @@ LAGRANGIAN_BUDGET = 2_000_000
 ON_POLICY_BUDGET = 3_000_000
 EVAL_EVERY = 100_000
 EVAL_EPISODES = 64
+QUICK_EPISODE_LENGTH = 10  # --quick's episodes (the tables' regime)
+
+
+@dataclasses.dataclass(frozen=True)
+class Regime:
+    """Where the hazards are and how the team meets them (amendment of 2026-12-01, "CCR's
+    premise, the regimes"), and the evaluation interval and candidate budgets its episode
+    length allows in whole iterations (its addition of 2026-12-02)."""
+
+    layout_params: dict[str, Any]  # TrainConfig.layout_params: the Layout fields it changes
+    episode_length: int  # go-to-goal's steps to 95% success on nominal, times 1.3
+    eval_every: int  # environment steps between evaluations, whole iterations
+    budget_candidates: tuple[int, ...]  # the budgets run's candidates on the plain learner
+    # --quick's episodes, and the factor on its steps and intervals (quick_scale): 10
+    # steps for the tables' regime; a column's last robot needs 22 to arrive
+    quick_episode_length: int = QUICK_EPISODE_LENGTH
+
+    @property
+    def quick_scale(self) -> int:
+        """What --quick's steps, evaluation interval and candidate spacing are multiplied
+        by in this regime, so that they stay whole iterations of its quick episodes."""
+        return self.quick_episode_length // QUICK_EPISODE_LENGTH
+
+
+# The study's regimes (experiments/regimes.py chose `column` on the reference controllers
+# alone: experiments/results/regimes/). An iteration of 8 environments of 30 steps (240
+# steps; IPPO's and MAPPO's 4,800) divides neither 100,000 nor 1M or 2M, so `column`
+# evaluates every 120,000 steps (500 iterations) and its candidate budgets are 1.2M, 2.4M
+# and 3M, the nearest whole multiples of that interval to the amendment's 1M, 2M and 3M.
+REGIMES = {
+    "today": Regime(layout_params={}, episode_length=25, eval_every=EVAL_EVERY,
+                    budget_candidates=(1_000_000, 2_000_000, 3_000_000)),
+    "column": Regime(layout_params={"hazard_y_range": (-1.0, 1.0), "formation": "column",
+                                    "column_spacing": 0.3, "column_lateral": 0.05,
+                                    "arena_half_extent": (2.55, 2.0)},
+                     episode_length=30, eval_every=120_000,
+                     budget_candidates=(1_200_000, 2_400_000, 3_000_000),
+                     quick_episode_length=30),
+}
+DEFAULT_REGIME = "today"  # the paper's tables and searches; not written in their records
+# The study's scenario x learner pairs (the amendment of 2026-12-01): a regime's budget is
+# the smallest candidate at which plain's return has levelled off in all of them.
+STUDY_SCENARIOS = ("hidden_obstacle", "turbulence")
+STUDY_ALGOS = ("maddpg",)
 
 # The learners' hyperparameters where the protocol departs from their defaults
 # (TrainConfig's). MAAC: 1 update of batch 256 every 100 environment steps, not the
@@ -140,6 +184,12 @@ class Settings:
     # a grid can be split over invocations.
     scenarios: tuple[str, ...] = PAPER_SCENARIOS
     algos: tuple[str, ...] = ALGOS
+    regime: str = DEFAULT_REGIME  # a key of REGIMES: the layout and episode length
+
+    def __post_init__(self) -> None:
+        if self.regime not in REGIMES:
+            raise ValueError(f"--regime {self.regime!r} is not a regime of the protocol; "
+                             f"choose from {', '.join(REGIMES)}")
 
     def budget(self, algo: str) -> int:
         """Environment steps per run of learner ``algo``."""
@@ -150,14 +200,16 @@ def run_config(settings: Settings, scenario: str, algo: str, variant: str,
                **fields: Any) -> TrainConfig:
     """One run's configuration under an experiment's ``settings``: :func:`budget` steps,
     its evaluation interval and episodes, the protocol's learner settings (:data:`LEARNERS`),
-    tiny sizes if ``quick``; ``fields`` set the rest
+    the regime's layout and episode length, tiny sizes if ``quick``; ``fields`` set the rest
     (the transform). A budget or evaluation interval that would be rounded to whole
     iterations is refused (``ValueError``): an experiment's cells and tables record the
     budget asked for, so it must be the one that runs."""
+    regime = REGIMES[settings.regime]
     base = TrainConfig(algo=algo, scenario=scenario, variant=variant,
-                       learner=LEARNERS.get(algo))
+                       learner=LEARNERS.get(algo), episode_length=regime.episode_length,
+                       layout_params=dict(regime.layout_params))
     if settings.quick:
-        base = quick(base)
+        base = quick(base, regime.quick_episode_length)
     config = dataclasses.replace(base, total_env_steps=budget(algo, settings.steps),
                                  eval_every=settings.eval_every,
                                  eval_episodes=settings.eval_episodes, **fields)
@@ -178,10 +230,11 @@ def lagrangian(config: TrainConfig) -> Lagrangian:
                                         // config.steps_per_iteration))
 
 
-def quick(config: TrainConfig) -> TrainConfig:
-    """``config`` at a tiny size (2 environments of 10 steps, 8-unit networks, learning from
-    the 40th transition, an on-policy learner from its first rollout, in 2 minibatches):
-    the pipeline of an experiment in minutes, not its learning."""
+def quick(config: TrainConfig, episode_length: int = QUICK_EPISODE_LENGTH) -> TrainConfig:
+    """``config`` at a tiny size (2 environments of ``episode_length`` steps, 10 unless a
+    regime needs more, 8-unit networks, learning from the 40th transition, an on-policy
+    learner from its first rollout, in 2 minibatches): the pipeline of an experiment in
+    minutes, not its learning."""
     if config.on_policy:
         learner = PPOConfig(actor_hidden=(8,), critic_hidden=(8,), minibatches=2)
     elif config.algo == "maac":
@@ -190,8 +243,8 @@ def quick(config: TrainConfig) -> TrainConfig:
     else:
         learner = DDPGConfig(batch_size=32, actor_hidden=(8,), critic_hidden=(8,),
                              update_every=20)
-    return dataclasses.replace(config, num_envs=2, episode_length=10, learning_starts=40,
-                               learner=learner)
+    return dataclasses.replace(config, num_envs=2, episode_length=episode_length,
+                               learning_starts=40, learner=learner)
 
 
 # Whether a plain learner's return plateaued (ccrjax.run.stats.plateau), as the summaries say it.

@@ -89,6 +89,12 @@ def test_search_refuses_bad_input(search, argv, fragments, tmp_path, capsys):
     (["--tables-seeds", "--quick"], ("--quick has seeds of its own",)),
     (["--tables-seeds", "--steps", "2000000"],
      ("candidates 3,000,000 is above the budget 2,000,000",)),
+    (["--regime", "sideways"], ("--regime", "'today', 'column'")),
+    (["--regime", "column", "--candidate-every", "120000"],
+     ("--regime column checks its own candidate budgets", "--candidate-every")),
+    (["--regime", "column", "--tables-seeds"], ("leave out --tables-seeds",)),
+    (["--regime", "column", "--eval-every", "100000"],
+     ("--eval-every 100,000 runs as 100,080", "whole iterations of 240")),
 ])
 def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
     out = tmp_path / "never"
@@ -464,7 +470,9 @@ def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_c
     cells = {("turbulence", "iddpg"): {}}
     (tmp_path / "pessimistic" / "cells").mkdir(parents=True)
     path = tmp_path / "pessimistic" / "cells" / "turbulence-iddpg.json"
-    cell = {"algo": "iddpg", "settings": json.loads(json.dumps(dataclasses.asdict(penalty))),
+    from experiments.ledger import settings_record
+
+    cell = {"algo": "iddpg", "settings": settings_record(penalty),
             "budget": 3_000_000, "rows": []}
     path.write_text(json.dumps(cell))
     found = search.exact_plain_cells(settings, tmp_path / "ccr", cells)
