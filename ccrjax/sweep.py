@@ -64,8 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "for one scenario and learner: every value x seed trained at once, then "
                         "a table and the safety-efficiency trade-off.")
     parser.add_argument("--variant", choices=sorted(SEARCHED_PARAMETER), default="ccr",
-                        help="what to search: ccr (lambda) or pessimistic (penalty) "
-                        "(default: %(default)s)")
+                        help="what to search: ccr and its parts with an intrinsic reward, "
+                        "ccr_reward and ccr_perfect (lambda), pessimistic (penalty) or "
+                        "lagrangian (cost limit) (default: %(default)s)")
     parser.add_argument("--scenario", choices=tuple(SCENARIOS), default="hidden_obstacle",
                         help="scenario (default: %(default)s)")
     parser.add_argument("--algo", choices=ALGOS, default="maddpg",

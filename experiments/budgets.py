@@ -244,17 +244,6 @@ def seeds_text(seeds: list[int]) -> str:
     return f"Budget seeds {seeds}"
 
 
-def regime_text(settings: dict[str, Any]) -> str:
-    """The regime a summary's cells were trained in, if not the tables' (nothing then)."""
-    regime = settings.get("regime", protocol.DEFAULT_REGIME)
-    if regime == protocol.DEFAULT_REGIME:
-        return ""
-    return (f"; regime `{regime}` (docs/protocol.md, amendment of 2026-12-01: "
-            f"{protocol.REGIMES[regime].episode_length}-step episodes, layout "
-            + ", ".join(f"{k} {v}" for k, v in protocol.REGIMES[regime].layout_params.items())
-            + ")")
-
-
 def candidates_text(settings: dict[str, Any]) -> str:
     named = settings.get("candidate_budgets") or ()
     if named:
@@ -316,8 +305,10 @@ def budgets_markdown(result: dict[str, Any]) -> str:
     lines = [
         "# Budgets of the plain learners",
         "",
-        *([protocol.quick_note(variants=False), ""] if settings.get("quick") else []),
-        f"{seeds_text(settings['seeds'])}{regime_text(settings)}; environment steps per seed: "
+        *([protocol.quick_note(variants=False, regime=settings.get(
+            "regime", protocol.DEFAULT_REGIME)), ""] if settings.get("quick") else []),
+        f"{seeds_text(settings['seeds'])}{protocol.regime_text(settings)}; "
+        "environment steps per seed: "
         + ", ".join(f"{steps:,} ({algo})" for algo, steps in result["budgets"].items()) + "; "
         f"evaluation every {settings['eval_every']:,} steps, {settings['eval_episodes']} "
         f"episodes per seed; {candidates_text(settings)}. "

@@ -150,7 +150,9 @@ def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
     :data:`NOT_IN_CELLS`, with ``steps`` replaced by the budget its runs trained for
     (``budget``, else ``steps`` or the protocol's budget of ``algo``)."""
     kept = {k: v for k, v in folder_settings(record).items() if k != "steps"}
-    kept["budget"] = protocol.budget(algo, record.get("steps")) if budget is None else budget
+    kept["budget"] = (protocol.budget(algo, record.get("steps"),
+                                      record.get("regime", protocol.DEFAULT_REGIME))
+                      if budget is None else budget)
     return kept
 
 

@@ -129,6 +129,9 @@ DEFAULT_REGIME = "today"  # the paper's tables and searches; not written in thei
 # the smallest candidate at which plain's return has levelled off in all of them.
 STUDY_SCENARIOS = ("hidden_obstacle", "turbulence")
 STUDY_ALGOS = ("maddpg",)
+# A regime's budget per learner, once its budgets run has chosen it; until then its runs
+# train the largest candidate and a selection made there is provisional.
+REGIME_BUDGETS: dict[str, dict[str, int]] = {"column": {}}
 
 # The learners' hyperparameters where the protocol departs from their defaults
 # (TrainConfig's). MAAC: 1 update of batch 256 every 100 environment steps, not the
@@ -150,7 +153,11 @@ PENALTIES = (0.03, 0.1, 0.3, 1.0, 3.0, 10.0)
 # as value 0, is the multiplier held at 0: exactly the plain learner.
 COST_LIMITS = (0.003, 0.01, 0.02, 0.05, 0.1, 0.3)
 SEARCHED = {"ccr": ("lam", LAMBDAS), "pessimistic": ("penalty", PENALTIES),
-            "lagrangian": ("cost_limit", COST_LIMITS)}
+            "lagrangian": ("cost_limit", COST_LIMITS),
+            # CCR's parts with an intrinsic reward (the study, amendment of 2026-12-01):
+            # lambda over the same values, on the study's pairs alone
+            "ccr_reward": ("lam", LAMBDAS), "ccr_perfect": ("lam", LAMBDAS)}
+PART_VARIANTS = ("ccr_reward", "ccr_perfect")
 RULE = SelectionRule(objective="danger_frequency", constraint="success_rate", tolerance=0.05)
 
 
@@ -161,11 +168,34 @@ def budgets_text() -> str:
     return ", ".join(f"{steps:,} for {algo}" for algo, steps in BUDGETS.items())
 
 
-def budget(algo: str, steps: int | None) -> int:
-    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``."""
+def budget(algo: str, steps: int | None, regime: str = DEFAULT_REGIME) -> int:
+    """Environment steps per run: ``steps`` if given, else the protocol's budget of ``algo``
+    in ``regime`` (another regime's: :data:`REGIME_BUDGETS`, its largest candidate until
+    chosen)."""
     if steps is not None:
         return steps
+    if regime != DEFAULT_REGIME:
+        return REGIME_BUDGETS[regime].get(algo, max(REGIMES[regime].budget_candidates))
     return ON_POLICY_BUDGET if algo in ON_POLICY_ALGOS else BUDGETS[algo]
+
+
+def regime_text(record: dict[str, Any]) -> str:
+    """The regime a summary's cells were trained in (settings ``record``), as a clause to
+    follow its seeds; nothing for the tables' regime."""
+    regime = record.get("regime", DEFAULT_REGIME)
+    if regime == DEFAULT_REGIME:
+        return ""
+    spec = REGIMES[regime]
+    return (f"; regime `{regime}` (docs/protocol.md, amendment of 2026-12-01: "
+            f"{spec.episode_length}-step episodes, layout "
+            + ", ".join(f"{k} {v}" for k, v in spec.layout_params.items()) + ")")
+
+
+def study_pairs(algos: Sequence[str]) -> list[tuple[str, str]]:
+    """The study's scenario x learner pairs of the family of ``algos`` (the amendment of
+    2026-12-01): its scenarios with MADDPG, or with IPPO and MAPPO."""
+    learners = STUDY_ALGOS if family(algos) == ALGOS else ON_POLICY_ALGOS
+    return [(scenario, algo) for scenario in STUDY_SCENARIOS for algo in learners]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -193,7 +223,7 @@ class Settings:
 
     def budget(self, algo: str) -> int:
         """Environment steps per run of learner ``algo``."""
-        return budget(algo, self.steps)
+        return budget(algo, self.steps, self.regime)
 
 
 def run_config(settings: Settings, scenario: str, algo: str, variant: str,
@@ -256,15 +286,16 @@ LEARNER_NAMES = {"iddpg": "IDDPG", "maddpg": "MADDPG", "maac": "MAAC", "ippo": "
                  "mappo": "MAPPO"}
 
 
-def quick_note(variants: bool = True) -> str:
+def quick_note(variants: bool = True, regime: str = DEFAULT_REGIME) -> str:
     """The quick mode's warning atop a summary; ``variants``: whether it compares them
-    (the budgets train plain learners only)."""
+    (the budgets train plain learners only); ``regime``: the one its cells trained in."""
     tail = (", and the variants barely train, so their rows can coincide: pessimistic equal "
             "to plain to the digits shown" if variants else "")
-    return ("**Quick mode**: tiny networks, 2 environments of 10-step episodes, a few "
+    length = REGIMES[regime].quick_episode_length
+    return (f"**Quick mode**: tiny networks, 2 environments of {length}-step episodes, a few "
             "hundred to a few thousand steps per run, 4 evaluation episodes. It checks the "
             "pipeline; no number here measures learning or the scenarios (the reference "
-            "controllers run 10-step episodes too, the plateau checks see a handful of "
+            f"controllers run {length}-step episodes too, the plateau checks see a handful of "
             f"evaluations{tail}).")
 
 

@@ -3,6 +3,7 @@
     python experiments/search.py --variant ccr --out runs/search/ccr
     python experiments/search.py --variant pessimistic --out runs/search/pessimistic
     python experiments/search.py --variant ccr --quick --out /tmp/s     # tiny, for the tests
+    python experiments/search.py --variant ccr_reward --regime column   # the study's
 
 Both searches follow one protocol (``docs/protocol.md``, ``experiments/protocol.py``),
 fixed before either ran: the same budget per learner, the same selection seeds (100-102,
@@ -134,11 +135,12 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
 
 
 def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None:
-    """For the lambda search, the penalty search's cells of the same pairs, when its folder
+    """For a lambda search (CCR's or a part's), the penalty search's cells of the same pairs,
+    when its folder
     (``pessimistic`` beside ``out``) holds them all with the same seeds and budgets: their
     value 0 is exactly the plain learner, while lambda 0 still observes the shared scores.
     ``None`` otherwise (then no check is made)."""
-    if settings.variant != "ccr":
+    if protocol.SEARCHED[settings.variant][0] != "lam":
         return None
     # What the penalty search's cells hold when made with these seeds, budgets and
     # evaluations (its own protocol values).
@@ -167,34 +169,65 @@ def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:
     return rows
 
 
+def protocol_pairs(settings: Settings) -> list[set[tuple[str, str]]]:
+    """The sets of scenario x learner pairs over which a selection of ``settings`` is the
+    protocol's: in the tables' regime, the family's pairs of the paper's scenarios (the
+    tables' choice) or the study's pairs (the study's, amendment of 2026-12-01); in another
+    regime, and for CCR's parts, the study's alone."""
+    study = set(protocol.study_pairs(settings.algos))
+    if (settings.regime != protocol.DEFAULT_REGIME
+            or settings.variant in protocol.PART_VARIANTS):
+        return [study]
+    family = protocol.family(settings.algos)
+    return [{(s, a) for s in PAPER_SCENARIOS for a in family}, study]
+
+
 def not_the_protocols(settings: Settings) -> str | None:
     """Why a selection made with ``settings`` is not the protocol's choice (``None`` if it
-    is): the rule averages over all 9 scenario x learner pairs, on the selection seeds,
-    over the protocol's values and evaluations, at the protocol's budgets or its longer
-    ones (:data:`protocol.LONGER_BUDGETS`). Such a selection is provisional: the tables
-    refuse it."""
+    is): the rule averages over the pairs of :func:`protocol_pairs`, on the selection
+    seeds, over the protocol's values and the regime's evaluations, at the protocol's
+    budgets (in the tables' regime also its longer ones, :data:`protocol.LONGER_BUDGETS`;
+    in another regime the one its budgets run chose). Such a selection is provisional:
+    the tables refuse it."""
     _, values = protocol.SEARCHED[settings.variant]
     family = protocol.family(settings.algos)
-    left_out = [f"{s}-{a}" for s in PAPER_SCENARIOS for a in family
-                if s not in settings.scenarios or a not in settings.algos]
-    pairs = len(PAPER_SCENARIOS) * len(family)
-    budgets = protocol_budgets(settings.variant, family)
+    summarised = {(s, a) for s in settings.scenarios for a in settings.algos}
+    wanted = min(protocol_pairs(settings), key=lambda pairs: len(pairs ^ summarised))
+    left_out = [f"{s}-{a}" for s, a in sorted(wanted - summarised)]
+    outside = [f"{s}-{a}" for s, a in sorted(summarised - wanted)]
     reasons = [
         *(["the quick mode"] if settings.quick else []),
-        *([f"{len(left_out)} of {pairs} pairs not summarised ({', '.join(left_out)})"]
+        *([f"{len(left_out)} of {len(wanted)} pairs not summarised ({', '.join(left_out)})"]
           if left_out else []),
+        *([f"pairs outside the study's ({', '.join(outside)})"] if outside else []),
         *(["the amendment of 2026-12-02 searches no Lagrangian for the on-policy learners"]
           if family == protocol.ON_POLICY_ALGOS and settings.variant == "lagrangian"
           else []),
         *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),
-        *([f"--steps {settings.steps}"]
-          if budgets and {a: settings.budget(a) for a in family} not in budgets else []),
+        *budget_reasons(settings, family),
         *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
-          != (protocol.EVAL_EVERY, protocol.EVAL_EPISODES) else []),
+          != (protocol.REGIMES[settings.regime].eval_every, protocol.EVAL_EPISODES) else []),
     ]
     return "; ".join(reasons) or None
+
+
+def budget_reasons(settings: Settings, family: tuple[str, ...]) -> list[str]:
+    """Why the budgets of ``settings`` are not the protocol's (empty if they are): in the
+    tables' regime :func:`protocol_budgets`; in another, the budget its budgets run chose
+    (none yet: provisional)."""
+    if settings.regime == protocol.DEFAULT_REGIME:
+        budgets = protocol_budgets(settings.variant, family)
+        return ([f"--steps {settings.steps}"] if budgets and
+                {a: settings.budget(a) for a in family} not in budgets else [])
+    chosen = protocol.REGIME_BUDGETS[settings.regime]
+    missing = [a for a in settings.algos if a not in chosen]
+    if missing:
+        return [f"the {settings.regime} regime's budget of {', '.join(missing)} is not chosen "
+                f"yet (experiments/budgets.py --regime {settings.regime})"]
+    return ([f"--steps {settings.steps}"]
+            if any(settings.budget(a) != chosen[a] for a in settings.algos) else [])
 
 
 def protocol_budgets(variant: str, family: tuple[str, ...] = ALGOS) -> list[dict[str, int]]:
@@ -258,8 +291,10 @@ def search_markdown(result: dict) -> str:
     lines = [
         f"# Search of {parameter} ({settings['variant']})",
         "",
-        *([protocol.quick_note(), ""] if settings.get("quick") else []),
-        f"Selection seeds {settings['seeds']}; budgets per learner "
+        *([protocol.quick_note(regime=settings.get("regime", protocol.DEFAULT_REGIME)), ""]
+          if settings.get("quick") else []),
+        f"Selection seeds {settings['seeds']}{protocol.regime_text(settings)}; budgets per "
+        "learner "
         f"{result['budgets']}; evaluation every {settings['eval_every']:,} steps, "
         f"{settings['eval_episodes']} episodes per seed; mean and 95% CI over seeds (Student "
         "t, clipped to each metric's range). Made by:",
@@ -303,7 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "or the Lagrangian's cost limit over every scenario and learner under "
                         "one protocol and rule.")
     parser.add_argument("--variant", choices=sorted(protocol.SEARCHED), required=True,
-                        help="ccr (lambda), pessimistic (penalty) or lagrangian (cost limit)")
+                        help="ccr (lambda), pessimistic (penalty) or lagrangian (cost limit); "
+                        "for the study, CCR's parts ccr_reward and ccr_perfect (lambda)")
     parser.add_argument("--values", type=cli.float_in(0.0, low_open=True), nargs="+",
                         default=None, help="searched values, > 0 (default: the protocol's six "
                         "of the variant); 0, the rule's reference, is always trained beside them")
@@ -316,19 +352,28 @@ def build_parser() -> argparse.ArgumentParser:
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()}; the Lagrangian's "
                         f"{protocol.LAGRANGIAN_BUDGET:,})")
-    parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
-                        default=list(PAPER_SCENARIOS),
-                        help="scenarios (default: all three)")
+    parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS, default=None,
+                        help="scenarios (default: all three; for CCR's parts or another "
+                        "regime, the study's: " + " ".join(protocol.STUDY_SCENARIOS) + ")")
     parser.add_argument("--algos", nargs="+", choices=protocol.EXPERIMENT_ALGOS,
-                        default=list(ALGOS),
-                        help="learners, of one family (default: the paper's three; ippo "
-                        "mappo: the on-policy family, whose rule runs over its own 6 pairs)")
+                        default=None,
+                        help="learners, of one family (default: the paper's three, or for "
+                        "CCR's parts or another regime the study's " + " ".join(
+                            protocol.STUDY_ALGOS) + "; ippo mappo: the on-policy family, "
+                        "whose rule runs over its own 6 pairs)")
+    parser.add_argument("--regime", choices=tuple(protocol.REGIMES),
+                        default=protocol.DEFAULT_REGIME,
+                        help="the hazards' placement, the team's formation and the episode "
+                        "length (docs/protocol.md, amendment of 2026-12-01; default: "
+                        "%(default)s, the tables'); another regime searches the study's pairs "
+                        "at its own evaluation interval and budget")
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "search/<variant> (the on-policy learners': "
                     "search_on_policy/<variant>)",
                     default_text="runs/search/<variant>, the on-policy learners' "
-                    "runs/search_on_policy/<variant>")
+                    "runs/search_on_policy/<variant>, another regime's runs/search_<regime>/"
+                    "<variant>")
     add_checkpoint_option(parser)
     add_no_train_option(parser)
     distributed.add_options(parser)
@@ -337,21 +382,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     _, default_values = protocol.SEARCHED[args.variant]
+    regime = protocol.REGIMES[args.regime]
+    study = args.regime != protocol.DEFAULT_REGIME or args.variant in protocol.PART_VARIANTS
+    algos = args.algos or list(protocol.STUDY_ALGOS if study else ALGOS)
+    scenarios = args.scenarios or list(protocol.STUDY_SCENARIOS if study else PAPER_SCENARIOS)
     try:
-        protocol.family(args.algos)
+        protocol.family(algos)
     except ValueError as error:
         raise cli.UsageError(str(error)) from None
     values = tuple(sorted({float(v) for v in (args.values or default_values)}))
     fields: dict[str, Any] = {"variant": args.variant, "values": values,
-                              "scenarios": tuple(dict.fromkeys(args.scenarios)),
-                              "algos": tuple(dict.fromkeys(args.algos))}
+                              "scenarios": tuple(dict.fromkeys(scenarios)),
+                              "algos": tuple(dict.fromkeys(algos)), "regime": args.regime,
+                              "eval_every": regime.eval_every}
     if args.quick:
-        fields.update(quick=True, steps=protocol.QUICK_STEPS,
-                      eval_every=protocol.QUICK_EVAL_EVERY,
+        fields.update(quick=True, steps=protocol.QUICK_STEPS * regime.quick_scale,
+                      eval_every=protocol.QUICK_EVAL_EVERY * regime.quick_scale,
                       eval_episodes=protocol.QUICK_EVAL_EPISODES)
     if args.steps is not None:
         fields["steps"] = args.steps
-    elif args.variant == "lagrangian" and not args.quick:
+    elif (args.variant == "lagrangian" and not args.quick
+          and args.regime == protocol.DEFAULT_REGIME):
         fields["steps"] = protocol.LAGRANGIAN_BUDGET
     count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
@@ -365,8 +416,11 @@ def settings_from(args: argparse.Namespace) -> Settings:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     distributed.initialize(PROG, args)
-    on_policy = set(args.algos) <= set(protocol.ON_POLICY_ALGOS)  # a family's own folder
-    out = args.out or Path("runs/search_on_policy" if on_policy else "runs/search") / args.variant
+    # A family's and a regime's own folder.
+    on_policy = set(args.algos or ()) <= set(protocol.ON_POLICY_ALGOS) and bool(args.algos)
+    regime = "" if args.regime == protocol.DEFAULT_REGIME else f"_{args.regime}"
+    out = args.out or Path(f"runs/search{'_on_policy' if on_policy else ''}{regime}"
+                           ) / args.variant
 
     def settings_of() -> Settings:
         check_quick_out(args.quick, args.out)

@@ -6,12 +6,13 @@ budget by the rule the amendment names."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import pytest
 
-from experiments import budgets, protocol, regimes
+from experiments import budgets, protocol, regimes, search
 from experiments.ledger import expected_training, settings_record
 
 RESULTS = Path(__file__).resolve().parent.parent / "experiments" / "results"
@@ -96,3 +97,85 @@ def test_a_regimes_budget_is_the_smallest_candidate_where_every_study_pair_level
     assert ("no candidate passes for every plain learner, so **3,000,000** steps, flagged: "
             "at it the check fails for turbulence-maddpg") in "\n".join(
         budgets.rule_lines({"cells": cells, "settings": settings}))
+
+
+def search_settings(**fields) -> search.Settings:
+    variant = fields.pop("variant", "ccr")
+    return search.Settings(variant=variant, values=protocol.SEARCHED[variant][1],
+                           seeds=protocol.SELECTION_SEEDS, **fields)
+
+
+STUDY = {"scenarios": protocol.STUDY_SCENARIOS, "algos": protocol.STUDY_ALGOS}
+
+
+def test_a_search_is_the_protocols_over_the_tables_or_the_studys_pairs(monkeypatch):
+    """In the tables' regime lambda and the penalty are chosen over the paper's 9 pairs or
+    the study's; CCR's parts over the study's alone; in the column only at the budget its
+    budgets run chose, at its own evaluation interval."""
+    assert search.not_the_protocols(search_settings()) is None
+    assert search.not_the_protocols(search_settings(variant="pessimistic", **STUDY)) is None
+    assert search.not_the_protocols(search_settings(variant="ccr_reward", **STUDY)) is None
+    why = search.not_the_protocols(search_settings(variant="ccr_perfect"))
+    assert why.startswith("pairs outside the study's (hidden_obstacle-iddpg"), why
+    why = search.not_the_protocols(search_settings(scenarios=("turbulence",), algos=("maddpg",)))
+    assert why == "1 of 2 pairs not summarised (hidden_obstacle-maddpg)"
+
+    column = {**STUDY, "regime": "column", "eval_every": 120_000}
+    why = search.not_the_protocols(search_settings(**column))
+    assert why == ("the column regime's budget of maddpg is not chosen yet "
+                   "(experiments/budgets.py --regime column)")
+    monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {"maddpg": 2_400_000})
+    settings = search_settings(**column)
+    assert settings.budget("maddpg") == 2_400_000
+    assert search.not_the_protocols(settings) is None
+    assert search.not_the_protocols(search_settings(**column, steps=3_000_000)) == (
+        "--steps 3000000")
+    assert search.not_the_protocols(search_settings(**{**column, "eval_every": 240_000})) == (
+        "other evaluations")
+
+
+def test_the_studys_searches_default_to_its_pairs_and_the_regimes_evaluations():
+    def parsed(*argv: str) -> search.Settings:
+        return search.settings_from(search.build_parser().parse_args(["--variant", *argv]))
+
+    part = parsed("ccr_reward")
+    assert (part.scenarios, part.algos, part.regime) == (
+        protocol.STUDY_SCENARIOS, protocol.STUDY_ALGOS, "today")
+    column = parsed("pessimistic", "--regime", "column")
+    assert (column.scenarios, column.eval_every) == (protocol.STUDY_SCENARIOS, 120_000)
+    assert column.budget("maddpg") == 3_000_000  # the largest candidate until chosen
+    assert parsed("ccr").scenarios == tuple(search.PAPER_SCENARIOS)
+    assert parsed("lagrangian", "--regime", "column").steps is None
+    quick = parsed("ccr_perfect", "--regime", "column", "--quick")
+    assert quick.config("turbulence", "maddpg").episode_length == 30
+
+
+def test_a_parts_lambda_search_takes_the_penalty_searchs_exact_plain_runs(tmp_path):
+    settings = search_settings(variant="ccr_perfect", **STUDY)
+    penalty = dataclasses.replace(settings, variant="pessimistic",
+                                  values=protocol.SEARCHED["pessimistic"][1])
+    cells = {pair: {} for pair in protocol.study_pairs(protocol.STUDY_ALGOS)}
+    (tmp_path / "pessimistic" / "cells").mkdir(parents=True)
+    for scenario, algo in cells:
+        cell = {"algo": algo, "settings": settings_record(penalty), "budget": 3_000_000}
+        (tmp_path / "pessimistic" / "cells" / f"{scenario}-{algo}.json").write_text(
+            json.dumps(cell))
+    assert set(search.exact_plain_cells(settings, tmp_path / "ccr_perfect", cells)) == set(cells)
+    assert search.exact_plain_cells(dataclasses.replace(settings, variant="lagrangian"),
+                                    tmp_path / "lagrangian", cells) is None
+
+
+@pytest.mark.slow  # two quick pipelines: about 40 s
+def test_the_column_budgets_and_a_parts_search_run_end_to_end(tmp_path):
+    """At a toy size in the column: the budgets run and a search of CCR's perfect detector
+    write their summaries, naming the regime, from cells trained in the column."""
+    assert budgets.main(["--regime", "column", "--quick", "--algos", "maddpg", "--scenarios",
+                         "turbulence", "--out", str(tmp_path / "budgets")]) == 0
+    assert search.main(["--variant", "ccr_perfect", "--regime", "column", "--quick",
+                        "--scenarios", "turbulence", "--out", str(tmp_path / "search")]) == 0
+    for summary in (tmp_path / "budgets" / "budgets.md", tmp_path / "search" / "search.md"):
+        text = summary.read_text()
+        assert "regime `column`" in text and "30-step episodes" in text
+    cell = json.loads((tmp_path / "search" / "cells" / "turbulence-maddpg.json").read_text())
+    assert cell["settings"]["regime"] == "column"
+    assert cell["training"]["layout"]["formation"] == "column"

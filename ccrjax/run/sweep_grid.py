@@ -21,10 +21,14 @@ from ccrjax.training.grid import GridRuns
 
 # The run parameter each searchable variant takes, and the values searched by default
 # (the protocol's, docs/protocol.md).
-SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty", "lagrangian": "cost_limit"}
-DEFAULT_VALUES = {"ccr": (0.3, 1.0, 3.0, 10.0, 30.0, 100.0),
-                  "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0),
-                  "lagrangian": (0.003, 0.01, 0.02, 0.05, 0.1, 0.3)}
+# CCR's parts with an intrinsic reward (the reward alone, the perfect detector) take CCR's
+# lambda and its values.
+SEARCHED_PARAMETER = {"ccr": "lam", "pessimistic": "penalty", "lagrangian": "cost_limit",
+                      "ccr_reward": "lam", "ccr_perfect": "lam"}
+LAMBDAS = (0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
+DEFAULT_VALUES = {"ccr": LAMBDAS, "pessimistic": (0.03, 0.1, 0.3, 1.0, 3.0, 10.0),
+                  "lagrangian": (0.003, 0.01, 0.02, 0.05, 0.1, 0.3),
+                  "ccr_reward": LAMBDAS, "ccr_perfect": LAMBDAS}
 # Where the value 0 of a parameter is not itself the reference, the run numbers that make
 # the reference: a cost limit of 0 would be the strictest constraint, so the Lagrangian's
 # reference is its multiplier held at 0 (no gain), which is exactly the plain learner.
