@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -123,8 +124,12 @@ def build_training(job: Job, settings: Settings) -> GridTraining:
     return GridTraining(config, seeds, params, record_episodes=episodes, record_key=key)
 
 
-def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
-    """The finished cells of a job's runs, by variant."""
+def cells_of(job: Job, runs: GridRuns, settings: Settings,
+             measure: Callable[[dict[str, np.ndarray]], dict] | None = None
+             ) -> dict[str, dict]:
+    """The finished cells of a job's runs, by variant; ``measure`` (of a variant's recorded
+    episodes, leading seed axis) adds what an experiment measures beyond the tables, as
+    the cell's ``measures``."""
     seeds = list(settings.seeds)
     cells = {}
     for index, variant in enumerate(job.variants):
@@ -154,6 +159,8 @@ def cells_of(job: Job, runs: GridRuns, settings: Settings) -> dict[str, dict]:
                 "centre_distance": analysis["centre_distance"].mean(axis=1).tolist(),
                 "followers_closest_successful": followers_closest(analysis).tolist(),
             }
+        if measure is not None:
+            cell["measures"] = measure(episodes)
         cell["episode"] = {  # the first recorded episode of the first seed, for pictures
             "position": episodes["position"][0, ..., 0].tolist(),
             "success": episodes["success"][0, :, 0].tolist(),
@@ -206,9 +213,11 @@ def cell_stem(scenario: str, algo: str, variant: str) -> str:
 
 
 def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
-             jobs: list[Job] | None = None) -> int:
+             jobs: list[Job] | None = None,
+             measure: Callable[[dict[str, np.ndarray]], dict] | None = None) -> int:
     """Trains every missing program of ``settings`` (``jobs``: those programs, default the
-    tables' :func:`jobs_of`), compiling the next program while one trains; returns the
+    tables' :func:`jobs_of`; ``measure``: :func:`cells_of`'s), compiling the next program
+    while one trains; returns the
     number of programs trained. With several processes
     (:mod:`ccrjax.run.distributed`) each trains its share of every program's runs and
     process 0 writes the cells."""
@@ -236,7 +245,7 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
             done.result()
             runs = partial.train(job.training, job.name)
             if distributed.is_primary():
-                for variant, cell in cells_of(job, runs, settings).items():
+                for variant, cell in cells_of(job, runs, settings, measure).items():
                     write_atomic(variant_cell_path(out, job.scenario, job.algo, variant),
                                  json.dumps(cell) + "\n")
             partial.discard(job.name)

@@ -1,0 +1,140 @@
+"""The study's command and measures (docs/protocol.md, amendment of 2026-12-01), on
+made-up episodes and search cells: who the followers are and what is measured of them,
+the forewarned share per seed, which value each variant trains with and what its cells
+record, and what bad input gets."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ccrjax import cli
+from experiments import protocol, study
+from experiments.ledger import settings_record
+from experiments.study_measures import cell_measures, follower_mask, followers
+
+
+def column_episode() -> dict[str, np.ndarray]:
+    """Three robots in a column along x for 4 steps, 2 episodes: robot 2 leads in the
+    first, robot 0 in the second; the hazard's centre at the origin."""
+    T, N, E = 4, 3, 2
+    position = np.zeros((T + 1, N, 2, E))
+    position[:, :, 0, 0] = np.array([-2.0, -1.5, -1.0])  # robot 2 furthest along x
+    position[:, :, 0, 1] = np.array([-1.0, -2.0, -1.5])  # robot 0
+    position[:, :, 1, :] = 1.0
+    danger = np.zeros((T, N, E), bool)
+    danger[1:3, 2, 0] = True  # the leader of episode 0, two steps
+    danger[3, 1, 1] = True  # a follower of episode 1, one step
+    success = np.array([[1, 0], [0, 1], [1, 1]], bool)
+    centre = np.zeros((2, E))
+    return {"position": position, "danger": danger, "success": success, "centre": centre}
+
+
+def test_the_followers_are_all_but_the_robot_furthest_along_the_way():
+    ep = column_episode()
+    np.testing.assert_array_equal(follower_mask(ep["position"]),
+                                  [[True, False], [True, True], [False, True]])
+    got = followers(ep["position"], ep["danger"], ep["success"], ep["centre"])
+    # Followers: robots 0, 1 (episode 0) and 1, 2 (episode 1).
+    distance = np.mean([np.hypot(-2.0, 1.0), np.hypot(-1.5, 1.0), np.hypot(-2.0, 1.0),
+                        np.hypot(-1.5, 1.0)])
+    assert got["followers_centre_distance"] == pytest.approx(distance)
+    assert got["followers_danger"] == pytest.approx(np.mean([0, 0, 0.25, 0]))
+    assert got["followers_success"] == pytest.approx(np.mean([1, 0, 1, 1]))
+
+
+def test_cell_measures_are_per_seed_and_a_seed_without_danger_has_no_forewarned_share():
+    ep = column_episode()
+    calm = {k: v.copy() for k, v in ep.items()}
+    calm["danger"][:] = False
+    episodes = {"position": np.stack([ep["position"], calm["position"]]),
+                "danger": np.stack([ep["danger"], calm["danger"]]).astype(np.int32),
+                "success": np.stack([ep["success"], calm["success"]]),
+                "hazard_centre": np.stack([ep["centre"], calm["centre"]])}
+    measures = cell_measures(episodes)
+    assert measures["forewarned_share"][1] is None
+    assert 0.0 <= measures["forewarned_share"][0] <= 1.0
+    assert measures["followers_danger"] == pytest.approx([0.0625, 0.0])
+    assert len(measures["followers_success"]) == 2
+
+
+def test_a_programs_cells_record_only_their_own_value():
+    settings = study.Settings(values={"pessimistic": 3.0, "ccr": 1.0, "ccr_perfect": 10.0},
+                              regime="column", eval_every=120_000)
+    assert settings.run_params("ccr_perfect") == {"lam": 10.0}
+    assert settings.run_params("ccr_scores") == {}
+    assert settings.for_program(("ccr",)).values == {"ccr": 1.0}
+    assert settings.for_program(("plain", "pessimistic")).penalty == 3.0
+    assert settings_record(settings.for_program(("danger_flags",)))["values"] == {}
+    names = [job.name for job in study.jobs_of(settings, ("plain", "pessimistic", "ccr"))]
+    assert names == ["hidden_obstacle-maddpg-plain+pessimistic", "hidden_obstacle-maddpg-ccr",
+                     "turbulence-maddpg-plain+pessimistic", "turbulence-maddpg-ccr"]
+
+
+def search_cells(folder, regime: str, variant: str, danger: list[float]) -> None:
+    """Made-up search cells of the study's pairs: value 0 and the six values, each seed
+    the same metrics; ``danger`` per grid value, success always 0.9."""
+    settings = study.search.Settings(
+        variant=variant, values=protocol.SEARCHED[variant][1], regime=regime,
+        eval_every=protocol.REGIMES[regime].eval_every, scenarios=protocol.STUDY_SCENARIOS,
+        algos=protocol.STUDY_ALGOS)
+    (folder / "cells").mkdir(parents=True)
+    for scenario, algo in protocol.study_pairs(protocol.STUDY_ALGOS):
+        rows = [{m: {"per_seed": [d if m == "danger_frequency" else 0.9] * 3}
+                 for m in ("return", "success_rate", "target_distance", "danger_frequency",
+                           "hazard_distance")} for d in danger]
+        cell = {"scenario": scenario, "algo": algo, "settings": settings_record(settings),
+                "budget": settings.budget(algo), "rows": rows}
+        (folder / "cells" / f"{scenario}-{algo}.json").write_text(json.dumps(cell))
+
+
+def test_the_value_is_the_regimes_search_choice_over_the_studys_pairs(tmp_path, monkeypatch):
+    folder = tmp_path / "ccr_reward"
+    search_cells(folder, "today", "ccr_reward", [0.3, 0.2, 0.1, 0.05, 0.2, 0.3, 0.3])
+    assert study.chosen_value("ccr_reward", "today", ("maddpg",), folder) == 3.0
+    with pytest.raises(cli.UsageError, match="needs its search's cells hidden_obstacle-maddpg"):
+        study.chosen_value("ccr_perfect", "today", ("maddpg",), tmp_path / "none")
+    column = tmp_path / "column" / "ccr"
+    search_cells(column, "column", "ccr", [0.3, 0.2, 0.1, 0.05, 0.2, 0.3, 0.3])
+    with pytest.raises(cli.UsageError, match="provisional .*budget of maddpg is not chosen"):
+        study.chosen_value("ccr", "column", ("maddpg",), column)
+    monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {"maddpg": 3_000_000})
+    assert study.chosen_value("ccr", "column", ("maddpg",), column) == 3.0
+    assert study.search_folder("ccr", "today", tmp_path) == study.TABLES_SEARCHES["ccr"]
+    assert study.search_folder("ccr", "column", tmp_path) == tmp_path / "ccr"
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--regime", "column", "--value", "plain", "1"], "--value plain: not a searched variant"),
+    (["--regime", "column", "--value", "ccr", "-1"], "--value ccr -1: give a finite number > 0"),
+    (["--regime", "column", "--value", "ccr", "inf"], "give a finite number > 0"),
+    (["--regime", "column", "--seeds", "4"], "--seeds"),
+    (["--regime", "sideways"], "--regime"),
+    (["--regime", "column", "--algos", "maddpg", "ippo"], "mixes the off-policy learners"),
+    (["--regime", "column", "--variants", "pessimistic"],
+     "--variants pessimistic needs its search's cells"),
+])
+def test_bad_input_is_one_line_before_anything_trains(argv, fragment, tmp_path, capsys):
+    out = tmp_path / "never"
+    with pytest.raises(SystemExit) as exit_:
+        study.main([*argv, "--searches", str(tmp_path / "none"), "--out", str(out)])
+    assert exit_.value.code == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(lines) == 1 and fragment in lines[0], lines
+    assert not out.exists()
+
+
+@pytest.mark.slow  # seven quick programs: about 2 minutes
+def test_the_study_runs_end_to_end_in_the_column_and_resumes_without_training(tmp_path):
+    out = tmp_path / "study"
+    argv = ["--regime", "column", "--quick", "--scenarios", "turbulence", "--out", str(out)]
+    assert study.main(argv) == 0
+    made = json.loads((out / "study_cells.json").read_text())
+    assert all(made["programs"].values()) and len(made["programs"]) == 7
+    for variant in study.VARIANTS:
+        cell = json.loads((out / "cells" / f"turbulence-maddpg-{variant}.json").read_text())
+        assert cell["training"]["layout"]["formation"] == "column"
+        assert len(cell["measures"]["followers_success"]) == 2
+    assert study.main([*argv, "--no-train"]) == 0
