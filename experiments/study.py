@@ -12,7 +12,9 @@ together (plain is the penalty 0, exactly), CCR, CCR's four parts (``ccr_scores`
 seeds (10 by default, ``--seeds 5`` the amendment's least) at the regime's budget, as the
 tables' programs do (:mod:`experiments.tables_grid`: resumable, cells written as they
 finish). Each cell also holds the study's own measures (:mod:`experiments.study_measures`:
-the forewarned share, the followers' distance, danger and success), per seed.
+the forewarned share, the followers' distance, danger and success), per seed; the
+hypotheses and aggregates over the cells of both regimes are
+:mod:`experiments.study_analysis`'s.
 
 Each searched parameter is the regime's search's choice over the study's pairs
 (:func:`chosen_value`): in ``column``, ``<searches>/<variant>`` (``search.py --variant V

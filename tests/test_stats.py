@@ -18,11 +18,13 @@ import pytest
 from scipy import stats as scipy_stats
 
 from ccrjax.run.stats import (
+    difference_of_differences,
     holm,
     iqm,
     mean_ci,
     mean_ci_along,
     mean_relative_change,
+    one_sided_below,
     plateau,
     plateau_or_undetermined,
     probability_of_improvement,
@@ -303,3 +305,24 @@ def test_holm_steps_down_and_stops_at_the_first_failure():
     assert holm([0.001, 0.002]).tolist() == [True, True]
     assert holm([0.2, 0.001]).tolist() == [False, True]
     assert not holm([0.06, 0.5]).any()
+
+
+def test_one_sided_below_halves_the_two_sided_p_in_its_direction():
+    low, high = [0.1, 0.12, 0.11, 0.13], [0.3, 0.31, 0.29, 0.32]
+    two = welch(low, high)
+    below = one_sided_below(low, high)
+    assert below["p"] == pytest.approx(two["p"] / 2) and below["significant"]
+    above = one_sided_below(high, low)
+    assert above["p"] == pytest.approx(1 - two["p"] / 2) and not above["significant"]
+
+
+def test_difference_of_differences_and_its_bootstrap_interval():
+    a1, b1 = np.array([0.3, 0.31, 0.29]), np.array([0.1, 0.11, 0.09])  # effect 0.2
+    a2, b2 = np.array([0.3, 0.31, 0.29]), np.array([0.28, 0.29, 0.27])  # effect 0.02
+    found = difference_of_differences(a1, b1, a2, b2, resamples=500)
+    assert found["difference"] == pytest.approx(0.18)
+    assert 0.0 < found["ci_low"] < 0.18 < found["ci_high"]
+    same = difference_of_differences(a1, b1, a1, b1, resamples=500)
+    assert same["ci_low"] < 0 < same["ci_high"]
+    with pytest.raises(ValueError, match="at least 2 seeds per group"):
+        difference_of_differences([1.0], b1, a2, b2)

@@ -12,6 +12,7 @@ import pytest
 
 from ccrjax import cli
 from experiments import protocol, study
+from experiments import study_analysis as analysis
 from experiments.ledger import settings_record
 from experiments.study_measures import cell_measures, follower_mask, followers
 
@@ -138,3 +139,72 @@ def test_the_study_runs_end_to_end_in_the_column_and_resumes_without_training(tm
         assert cell["training"]["layout"]["formation"] == "column"
         assert len(cell["measures"]["followers_success"]) == 2
     assert study.main([*argv, "--no-train"]) == 0
+
+
+def made_up(danger: list[float], success: float = 0.9) -> dict:
+    """A study cell of 5 seeds with these dangers (success the same on every seed)."""
+    seeds = len(danger)
+    return {"final": {"danger_frequency": danger, "success_rate": [success] * seeds},
+            "measures": {"forewarned_share": [0.5, None, 0.3, 0.4, 0.6][:seeds],
+                         "followers_centre_distance": [1.0] * seeds,
+                         "followers_danger": danger, "followers_success": [success] * seeds}}
+
+
+SPREAD = np.array([-0.01, 0.0, 0.01, 0.005, -0.005])
+
+
+def test_the_hypotheses_on_made_up_cells():
+    """CCR no different from plain today, clearly safer in the column at the same success:
+    H1, H2 and H3 hold; the perfect detector is safer than CCR; CCR's danger equals the
+    penalty's. Then a CCR that costs 10 points of success fails H2, and a cell not made
+    leaves its hypotheses open."""
+    cells = {}
+    for regime, plain, ccr in (("today", 0.30, 0.30), ("column", 0.30, 0.20)):
+        for variant, level in (("plain", plain), ("ccr", ccr), ("pessimistic", ccr),
+                               ("ccr_perfect", 0.10)):
+            cells[(regime, "turbulence", "maddpg", variant)] = made_up(
+                list(level + SPREAD))
+    found = analysis.hypotheses(cells, "turbulence", "maddpg", resamples=500)
+    assert found["H1"]["holds"] is True and found["H1"]["p"] > 0.05
+    assert found["H2"]["holds"] is True and found["H2"]["p"] < 0.05
+    assert found["H2"]["success_drop"] == pytest.approx(0.0)
+    assert found["H3"]["holds"] is True
+    assert found["H3"]["difference"] == pytest.approx(0.10)
+    perfect = found["H4"]["column/ccr_perfect"]
+    assert perfect["against_ccr"]["significant"] and perfect["against_ccr"]["difference"] < 0
+    assert not found["H5"]["column/pessimistic"]["danger_frequency"]["significant"]
+    assert "column/lagrangian" not in found["H5"]
+
+    cells[("column", "turbulence", "maddpg", "ccr")] = made_up(list(0.20 + SPREAD), 0.80)
+    assert analysis.hypotheses(cells, "turbulence", "maddpg", 500)["H2"]["holds"] is False
+    del cells[("today", "turbulence", "maddpg", "plain")]
+    found = analysis.hypotheses(cells, "turbulence", "maddpg", 500)
+    assert found["H1"] == {"holds": None} and found["H3"] == {"holds": None}
+
+
+def test_the_danger_is_no_lower_one_sidedly_when_ccr_is_worse():
+    cells = {("column", "turbulence", "maddpg", "plain"): made_up(list(0.2 + SPREAD)),
+             ("column", "turbulence", "maddpg", "ccr"): made_up(list(0.3 + SPREAD))}
+    found = analysis.hypotheses(cells, "turbulence", "maddpg", 500)
+    assert found["H2"]["p"] > 0.95 and found["H2"]["holds"] is False
+    # The same effect today: no larger in the column, H3's interval straddles 0.
+    cells[("today", "turbulence", "maddpg", "plain")] = made_up(list(0.2 + SPREAD))
+    cells[("today", "turbulence", "maddpg", "ccr")] = made_up(list(0.3 + SPREAD))
+    found = analysis.hypotheses(cells, "turbulence", "maddpg", 500)
+    assert found["H3"]["ci_low"] < 0 < found["H3"]["ci_high"] and found["H3"]["holds"] is False
+
+
+def test_a_cells_row_and_the_regimes_aggregates():
+    row = analysis.cell_row(made_up(list(0.3 + SPREAD)))
+    assert row["forewarned_share"]["n"] == 4  # the seed without danger left out
+    assert row["forewarned_share"]["mean"] == pytest.approx(0.45)
+    assert row["danger_frequency"]["mean"] == pytest.approx(0.3)
+    cells = {("column", s, "maddpg", v): made_up(list(level + SPREAD))
+             for s in ("turbulence", "hidden_obstacle")
+             for v, level in (("plain", 0.3), ("ccr", 0.1))}
+    cells[("column", "turbulence", "maddpg", "ccr_scores")] = made_up(list(0.3 + SPREAD))
+    found = analysis.aggregates(cells, "column", resamples=200)
+    assert found["pairs"] == ["hidden_obstacle-maddpg", "turbulence-maddpg"]
+    assert set(found["iqm"]["danger_frequency"]) == {"plain", "ccr"}  # made in every pair
+    assert found["iqm"]["danger_frequency"]["ccr"]["iqm"] == pytest.approx(0.1, abs=0.01)
+    assert found["ccr_safer_than_plain"]["probability"] == pytest.approx(1.0)

@@ -6,8 +6,10 @@
   normal interval when ``n`` is small (``t = 2.26`` for 10 seeds). The interval is
   clipped to the metric's range (``bounds``): a success rate's interval never leaves
   [0, 1]. With one seed there is no interval (``None``).
-* :func:`welch`: Welch's unequal-variance t-test of two groups of seeds; :func:`holm`:
-  Holm's correction of a family of such tests.
+* :func:`welch`: Welch's unequal-variance t-test of two groups of seeds (and
+  :func:`one_sided_below`, its one-sided form); :func:`holm`: Holm's correction of a family
+  of such tests; :func:`difference_of_differences`: an effect's change between two
+  conditions, with a bootstrap interval over seeds.
 * :func:`relative_change` and :func:`mean_relative_change`: the paper's headline
   numbers (the average over scenario x learner pairs of the relative change of the
   mean), with a bootstrap interval over seeds.
@@ -115,6 +117,35 @@ def welch(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray,
                 warnings.filterwarnings("ignore", "Precision loss", RuntimeWarning)
             p = float(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue)
     return {"difference": difference, "p": p, "significant": bool(p < alpha)}
+
+
+def one_sided_below(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray,
+                    alpha: float = 0.05) -> dict:
+    """Welch's one-sided test of ``mean(a) < mean(b)``: :func:`welch`'s two-sided p halved
+    where ``a``'s mean is below ``b``'s, ``1 - p / 2`` where it is not. Returns ``{"difference",
+    "p", "significant"}`` as :func:`welch` does."""
+    two_sided = welch(a, b, alpha)
+    p = two_sided["p"] / 2 if two_sided["difference"] < 0 else 1.0 - two_sided["p"] / 2
+    return {"difference": two_sided["difference"], "p": p, "significant": bool(p < alpha)}
+
+
+def difference_of_differences(a1: Sequence[float] | np.ndarray, b1: Sequence[float] | np.ndarray,
+                              a2: Sequence[float] | np.ndarray, b2: Sequence[float] | np.ndarray,
+                              resamples: int = 2000, seed: int = 0) -> dict:
+    """``(mean(a1) - mean(b1)) - (mean(a2) - mean(b2))`` (how much larger an effect is in
+    one condition than in another, e.g. plain's danger minus CCR's in two regimes), with its
+    95% percentile bootstrap interval: the seeds of each of the four groups resampled with
+    replacement, ``resamples`` times. ``{"difference", "ci_low", "ci_high"}``."""
+    groups = [np.asarray(g, np.float64).reshape(-1) for g in (a1, b1, a2, b2)]
+    if min(g.size for g in groups) < 2:
+        raise ValueError("difference_of_differences needs at least 2 seeds per group, got "
+                         + ", ".join(str(g.size) for g in groups))
+    rng = np.random.default_rng(seed)
+    means = [rng.choice(g, (resamples, g.size), replace=True).mean(axis=1) for g in groups]
+    boot = (means[0] - means[1]) - (means[2] - means[3])
+    point = (groups[0].mean() - groups[1].mean()) - (groups[2].mean() - groups[3].mean())
+    return {"difference": float(point), "ci_low": float(np.percentile(boot, 2.5)),
+            "ci_high": float(np.percentile(boot, 97.5))}
 
 
 def holm(p_values: Sequence[float] | np.ndarray, alpha: float = 0.05) -> np.ndarray:
