@@ -13,6 +13,7 @@ import pytest
 from ccrjax import cli
 from experiments import protocol, study
 from experiments import study_analysis as analysis
+from experiments import study_report as report
 from experiments.ledger import settings_record
 from experiments.study_measures import cell_measures, follower_mask, followers
 
@@ -208,3 +209,39 @@ def test_a_cells_row_and_the_regimes_aggregates():
     assert set(found["iqm"]["danger_frequency"]) == {"plain", "ccr"}  # made in every pair
     assert found["iqm"]["danger_frequency"]["ccr"]["iqm"] == pytest.approx(0.1, abs=0.01)
     assert found["ccr_safer_than_plain"]["probability"] == pytest.approx(1.0)
+
+
+def test_the_report_states_each_variants_effect_and_the_hypotheses(tmp_path, capsys):
+    """Made-up cells of both regimes written as study.py writes them: the effects are
+    signed so that better is positive, the report gives every hypothesis its verdict, and
+    a folder without a study is one line."""
+    for regime, ccr in (("today", 0.30), ("column", 0.20)):
+        folder = tmp_path / regime
+        (folder / "cells").mkdir(parents=True)
+        (folder / "study_cells.json").write_text("{}")
+        for variant, level in (("plain", 0.30), ("ccr", ccr), ("danger_flags", 0.25)):
+            cell = {**made_up(list(level + SPREAD)), "scenario": "turbulence",
+                    "algo": "maddpg", "variant": variant, "seeds": [0, 1, 2, 3, 4],
+                    "settings": {"regime": regime, "quick": False}}
+            (folder / "cells" / f"turbulence-maddpg-{variant}.json").write_text(
+                json.dumps(cell))
+    cells = {**report.read_cells(tmp_path / "today", "today"),
+             **report.read_cells(tmp_path / "column", "column")}
+    assert len(cells) == 6
+    found = report.effect(cells, "column", "turbulence", "maddpg", "ccr", "danger_frequency")
+    assert found["effect"] == pytest.approx(0.10) and found["ci_low"] > 0
+    assert report.effect(cells, "column", "turbulence", "maddpg", "ccr_reward",
+                         "danger_frequency") is None
+    assert report.main(["--out", str(tmp_path)]) == 0
+    text = (tmp_path / "study.md").read_text()
+    assert "* H1 (today: CCR's danger is plain's): **holds**" in text
+    assert "* H2 (column: CCR's danger below plain's, success within 5 points): **holds**" in text
+    assert "* H3 (CCR's effect larger in the column): **holds**" in text
+    assert "H4 column/danger_flags, danger against plain: -5.0%" in text
+    assert (tmp_path / "effects.png").stat().st_size > 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        report.main(["--out", str(tmp_path / "empty")])
+    assert exit_.value.code == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(err) == 1 and "no study cells" in err[0]
