@@ -159,7 +159,20 @@ def report(cells: Cells, resamples: int = 2000) -> tuple[dict[str, Any], str]:
                 f"{_pct(row['followers_danger'])} | {_pct(row['followers_success'])} | "
                 f"{len(cell['seeds'])} |")
         lines.append("")
-    lines += ["## Hypotheses", ""]
+    lines += ["## Over the study's pairs", ""]
+    for regime, found in result["aggregates"].items():
+        if not found["pairs"]:
+            continue
+        iqms = found["iqm"]["danger_frequency"]
+        safer = found["ccr_safer_than_plain"]
+        lines.append(
+            f"* `{regime}` ({', '.join(found['pairs'])}): interquartile mean of danger "
+            + ", ".join(f"{v} {x['iqm']:.1%} [{x['ci_low']:.1%}, {x['ci_high']:.1%}]"
+                        for v, x in sorted(iqms.items(), key=lambda i: VARIANTS.index(i[0])))
+            + ("" if safer is None else
+               f"; P(a CCR run is safer than a plain one) {safer['probability']:.2f} "
+               f"[{safer['ci_low']:.2f}, {safer['ci_high']:.2f}]"))
+    lines += ["", "## Hypotheses", ""]
     for name, found in result["hypotheses"].items():
         lines += [f"### {name}", "",
                   f"* H1 (today: CCR's danger is plain's): {verdict(found['H1'])}"

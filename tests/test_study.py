@@ -238,6 +238,8 @@ def test_the_report_states_each_variants_effect_and_the_hypotheses(tmp_path, cap
     assert "* H2 (column: CCR's danger below plain's, success within 5 points): **holds**" in text
     assert "* H3 (CCR's effect larger in the column): **holds**" in text
     assert "H4 column/danger_flags, danger against plain: -5.0%" in text
+    assert "* `column` (turbulence-maddpg): interquartile mean of danger plain 30.0%" in text
+    assert "P(a CCR run is safer than a plain one) 1.00" in text
     assert (tmp_path / "effects.png").stat().st_size > 0
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_:
