@@ -26,7 +26,14 @@ import ccrjax
 from ccrjax import evaluate, terminal, train
 from ccrjax.run import session as sessions
 from ccrjax.run.checkpoint import Checkpoints
-from ccrjax.run.folder import CSV_COLUMNS, RunFolder, fingerprint, read_metrics, tree_commit
+from ccrjax.run.folder import (
+    CSV_COLUMNS,
+    RunFolder,
+    fingerprint,
+    read_metrics,
+    tree_code_commit,
+    tree_commit,
+)
 from ccrjax.training import make_train
 
 TINY = [
@@ -184,6 +191,23 @@ def test_the_recorded_commit_is_dirty_for_changed_code_but_not_for_changed_resul
     code.write_text("x = 2\n")
     assert tree_commit(tmp_path) == head + "+dirty"
     assert tree_commit(tmp_path / "ccrjax" / "missing") is None
+    # The code's commit, which a grid's checkpoint must match: results and documentation
+    # committed later leave it; a code change moves it.
+    code.write_text("x = 1\n")
+    (tmp_path / "notes.txt").unlink()
+    assert tree_code_commit(tmp_path) == head
+    git("add", ".")
+    git("commit", "-qm", "results")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "page.md").write_text("a page\n")
+    (tmp_path / "README.md").write_text("readme\n")
+    git("add", ".")
+    git("commit", "-qm", "documentation")
+    assert tree_commit(tmp_path) != head and tree_code_commit(tmp_path) == head
+    code.write_text("x = 3\n")
+    assert tree_code_commit(tmp_path) == head + "+dirty"
+    git("commit", "-qam", "code")
+    assert tree_code_commit(tmp_path) == tree_commit(tmp_path) != head
 
 
 def test_the_command_trains_what_the_library_trains(finished_run):

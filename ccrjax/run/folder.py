@@ -146,6 +146,41 @@ def tree_commit(root: Path) -> str | None:
     return commit + ("+dirty" if dirty else "")
 
 
+# What is not code: a commit that changes only these (results, documentation) leaves the
+# code that trains as it was (code_commit).
+NOT_CODE_PATHS = (*RESULT_PATHS, "docs", "*.md")
+
+
+@functools.cache
+def code_commit() -> str | None:
+    """:func:`tree_code_commit` of the ccrjax source tree, read once per process (as
+    :func:`git_commit` is); ``CCRJAX_COMMIT`` in the environment names it instead.
+
+    A grid's checkpoint is resumed only by the code that made it; committing a finished
+    program's results or a page of documentation between a stop and the restart changes
+    ``HEAD`` but not this, so the program in training resumes instead of starting over."""
+    if named := os.environ.get("CCRJAX_COMMIT"):
+        return named
+    return tree_code_commit(Path(ccrjax.__file__).resolve().parent.parent)
+
+
+def tree_code_commit(root: Path) -> str | None:
+    """The newest commit of the git tree at ``root`` that changed the code (anything but
+    :data:`NOT_CODE_PATHS`), with ``+dirty`` where :func:`tree_commit` says so; ``None``
+    where ``root`` is not in a git tree."""
+    head = tree_commit(root)
+    excluded = [f":(exclude){path}" for path in NOT_CODE_PATHS]
+    try:
+        commit = subprocess.run(
+            ["git", "log", "-1", "--format=%H", "--", ".", *excluded], cwd=root,
+            capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return head
+    if not commit or head is None:
+        return head
+    return commit + ("+dirty" if head.endswith("+dirty") else "")
+
+
 def environment_record() -> dict[str, Any]:
     """Versions and devices, for ``config.json``."""
     return {

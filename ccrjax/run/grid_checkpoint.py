@@ -11,7 +11,8 @@ last checkpoint.
 
 A checkpoint is resumed only by the same grid: the same configuration (budget included),
 seeds, run parameters, recorded episodes, device count (the state is padded to it) and
-code commit. Another one is set aside and the grid starts over, saying why. The caller
+code (:func:`ccrjax.run.folder.code_commit`: committing results or documentation in between
+does not count). Another one is set aside and the grid starts over, saying why. The caller
 deletes the folder once the grid's results are safely written (:func:`discard`).
 
 With several processes (:mod:`ccrjax.run.distributed`) every process writes its share of
@@ -35,7 +36,7 @@ import numpy as np
 
 from ccrjax.run import distributed
 from ccrjax.run.checkpoint import CheckpointError, Checkpoints
-from ccrjax.run.folder import fingerprint, git_commit
+from ccrjax.run.folder import code_commit, fingerprint
 from ccrjax.training import config_to_dict
 from ccrjax.training.grid import GridProgress, GridRuns, GridTraining
 
@@ -52,7 +53,7 @@ def grid_fingerprint(training: GridTraining) -> str:
             "record_episodes": training.record_episodes,
             "record_key": np.asarray(training.record_key).tolist(),
             "devices": training.num_devices,
-            "commit": git_commit(),
+            "commit": code_commit(),
         }
     })
 
