@@ -206,19 +206,20 @@ def not_the_protocols(settings: Settings) -> str | None:
         *([f"seeds {list(settings.seeds)}"] if settings.seeds != protocol.SELECTION_SEEDS
           else []),
         *([f"values {list(settings.values)}"] if settings.values != values else []),
-        *budget_reasons(settings, family),
+        *budget_reasons(settings, family, study=wanted == set(protocol.study_pairs(family))),
         *(["other evaluations"] if (settings.eval_every, settings.eval_episodes)
           != (protocol.REGIMES[settings.regime].eval_every, protocol.EVAL_EPISODES) else []),
     ]
     return "; ".join(reasons) or None
 
 
-def budget_reasons(settings: Settings, family: tuple[str, ...]) -> list[str]:
+def budget_reasons(settings: Settings, family: tuple[str, ...], study: bool = False
+                   ) -> list[str]:
     """Why the budgets of ``settings`` are not the protocol's (empty if they are): in the
-    tables' regime :func:`protocol_budgets`; in another, the budget its budgets run chose
-    (none yet: provisional)."""
+    tables' regime :func:`protocol_budgets` (``study``: a selection over the study's pairs);
+    in another, the budget its budgets run chose (none yet: provisional)."""
     if settings.regime == protocol.DEFAULT_REGIME:
-        budgets = protocol_budgets(settings.variant, family)
+        budgets = protocol_budgets(settings.variant, family, study)
         return ([f"--steps {settings.steps}"] if budgets and
                 {a: settings.budget(a) for a in family} not in budgets else [])
     chosen = protocol.REGIME_BUDGETS[settings.regime]
@@ -230,17 +231,21 @@ def budget_reasons(settings: Settings, family: tuple[str, ...]) -> list[str]:
             if any(settings.budget(a) != chosen[a] for a in settings.algos) else [])
 
 
-def protocol_budgets(variant: str, family: tuple[str, ...] = ALGOS) -> list[dict[str, int]]:
+def protocol_budgets(variant: str, family: tuple[str, ...] = ALGOS, study: bool = False
+                     ) -> list[dict[str, int]]:
     """The budgets at which ``variant``'s search of the learners ``family`` is the
-    protocol's: the off-policy Lagrangian's at its amendment's budget, the other off-policy
-    searches at the protocol's budgets or its longer ones, the on-policy ones at their
-    family's budget (none for a Lagrangian, which the amendment does not search there)."""
+    protocol's: the off-policy Lagrangian's at its amendment's budget over the tables'
+    pairs and at the study's (the protocol's budgets) over the study's pairs (``study``;
+    the addition of 2026-12-03), the other off-policy searches at the protocol's budgets
+    or its longer ones, the on-policy ones at their family's budget (none for a
+    Lagrangian, which the amendment does not search there)."""
     if family == protocol.ON_POLICY_ALGOS:
         if variant == "lagrangian":
             return []
         return [{algo: protocol.ON_POLICY_BUDGET for algo in family}]
     if variant == "lagrangian":
-        return [{algo: protocol.LAGRANGIAN_BUDGET for algo in ALGOS}]
+        return [dict(protocol.BUDGETS) if study else
+                {algo: protocol.LAGRANGIAN_BUDGET for algo in ALGOS}]
     return [protocol.BUDGETS, protocol.LONGER_BUDGETS]
 
 
@@ -351,7 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=cli.positive_int, default=None,
                         help="environment steps per run for every learner (default: the "
                         f"protocol's budgets, {protocol.budgets_text()}; the Lagrangian's "
-                        f"{protocol.LAGRANGIAN_BUDGET:,})")
+                        f"{protocol.LAGRANGIAN_BUDGET:,}, over the study's pairs the "
+                        "study's)")
     parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS, default=None,
                         help="scenarios (default: all three; for CCR's parts or another "
                         "regime, the study's: " + " ".join(protocol.STUDY_SCENARIOS) + ")")
@@ -402,8 +408,9 @@ def settings_from(args: argparse.Namespace) -> Settings:
     if args.steps is not None:
         fields["steps"] = args.steps
     elif (args.variant == "lagrangian" and not args.quick
-          and args.regime == protocol.DEFAULT_REGIME):
-        fields["steps"] = protocol.LAGRANGIAN_BUDGET
+          and args.regime == protocol.DEFAULT_REGIME
+          and {(s, a) for s in scenarios for a in algos} != set(protocol.study_pairs(algos))):
+        fields["steps"] = protocol.LAGRANGIAN_BUDGET  # the study's pairs: the study's budget
     count = args.seeds or (2 if args.quick else len(protocol.SELECTION_SEEDS))
     fields["seeds"] = tuple(range(args.seed_offset, args.seed_offset + count))
     problem = protocol.seed_overlap(fields["seeds"], args.seed_offset,

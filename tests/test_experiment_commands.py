@@ -345,6 +345,23 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
     assert "no Lagrangian for the on-policy" in search.not_the_protocols(
         dataclasses.replace(on_policy, variant="lagrangian"))
     monkeypatch.undo()
+    # The Lagrangian (addition of 2026-12-03): its amendment's 2M over the tables' pairs,
+    # the study's budget (the protocol's 3M) over the study's pairs, each by default.
+    limits = search.protocol.COST_LIMITS
+    tables_pairs = search.settings_from(search.build_parser().parse_args(
+        ["--variant", "lagrangian"]))
+    study_pairs = search.settings_from(search.build_parser().parse_args(
+        ["--variant", "lagrangian", "--algos", "maddpg", "--scenarios", "hidden_obstacle",
+         "turbulence"]))
+    assert (tables_pairs.steps, study_pairs.steps) == (2_000_000, None)
+    assert study_pairs.budget("maddpg") == 3_000_000
+    assert search.not_the_protocols(tables_pairs) is None
+    assert search.not_the_protocols(study_pairs) is None
+    assert "--steps 2000000" in search.not_the_protocols(
+        dataclasses.replace(study_pairs, steps=2_000_000))
+    assert "--steps 3000000" in search.not_the_protocols(
+        dataclasses.replace(tables_pairs, steps=3_000_000))
+    assert tables_pairs.values == study_pairs.values == tuple(limits)
     searches = tmp_path / "searches"
     for variant, protocol_choice in (("ccr", False), ("pessimistic", True)):
         (searches / variant).mkdir(parents=True)

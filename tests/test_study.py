@@ -98,6 +98,11 @@ def test_the_value_is_the_regimes_search_choice_over_the_studys_pairs(tmp_path, 
     assert study.chosen_value("ccr_reward", "today", ("maddpg",), folder) == 3.0
     with pytest.raises(cli.UsageError, match="needs its search's cells hidden_obstacle-maddpg"):
         study.chosen_value("ccr_perfect", "today", ("maddpg",), tmp_path / "none")
+    # The Lagrangian's search of the study's pairs in today is at the study's budget (3M).
+    search_cells(tmp_path / "lagrangian", "today", "lagrangian",
+                 [0.3, 0.2, 0.1, 0.05, 0.2, 0.3, 0.3])
+    assert study.chosen_value("lagrangian", "today", ("maddpg",),
+                              tmp_path / "lagrangian") == 0.02
     column = tmp_path / "column" / "ccr"
     search_cells(column, "column", "ccr", [0.3, 0.2, 0.1, 0.05, 0.2, 0.3, 0.3])
     with pytest.raises(cli.UsageError, match="provisional .*budget of maddpg is not chosen"):
