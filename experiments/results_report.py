@@ -26,6 +26,9 @@ from ccrjax import cli
 from ccrjax.run.folder import write_atomic
 from experiments.constrained_report import results_section
 from experiments.ledger import RESULTS, read_json
+from experiments.results_on_policy import SEARCHES as ON_POLICY_SEARCHES
+from experiments.results_on_policy import TABLES as ON_POLICY_TABLES
+from experiments.results_on_policy import on_policy_section
 from experiments.results_sections import (
     STATIC_EXPLANATIONS,
     budgets_section,
@@ -57,6 +60,9 @@ def report(results: Path = RESULTS) -> str:
                if (r := read_json(results / folder / "budgets.json"))}
     regimes = read_json(results / "regimes" / "regimes.json")
     constrained = read_json(results / CONSTRAINED / "constrained.json")
+    on_policy_searches = {v: s for v in ("ccr", "pessimistic")
+                          if (s := read_json(results / ON_POLICY_SEARCHES / v / "search.json"))}
+    on_policy_tables = read_json(results / ON_POLICY_TABLES / "tables.json")
     lines = [
         "# Results", "",
         "What ccrjax has measured: the paper's Tables I and II re-run under the "
@@ -78,6 +84,8 @@ def report(results: Path = RESULTS) -> str:
         lines += searches_section(searches)
     if constrained:
         lines += results_section(CONSTRAINED, constrained)
+    if on_policy_searches or on_policy_tables:
+        lines += on_policy_section(on_policy_searches, on_policy_tables)
     if tables:
         lines += plain_section(tables)
     if budgets:

@@ -4,6 +4,7 @@ a changed number in a result file changes the report."""
 
 from __future__ import annotations
 
+import functools
 import importlib
 import json
 import shutil
@@ -80,3 +81,60 @@ def test_the_command_checks_and_refuses_in_one_line(tmp_path):
     bad = subprocess.run([*command[:-1], str(tmp_path / "none")], capture_output=True,
                          text=True, cwd=ROOT)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--results" in bad.stderr
+
+
+def made_up_on_policy_tables(danger, success, monkeypatch) -> dict:
+    """``tables.json`` of the on-policy family from made-up cells (5 seeds each):
+    ``danger(scenario, algo, variant)`` and ``success(...)`` give a cell's mean (the
+    bootstraps at 100 resamples, enough for made-up numbers)."""
+    statistics = importlib.import_module("experiments.tables_statistics")
+    for name in ("aggregates", "headline"):
+        monkeypatch.setattr(statistics, name,
+                            functools.partial(getattr(statistics, name), resamples=100))
+    grid = importlib.import_module("experiments.tables_grid")
+    offsets = [-0.02, -0.01, 0.0, 0.01, 0.02]
+    cells = {}
+    for scenario, algo in importlib.import_module("experiments.results_on_policy").PAIRS:
+        for variant in grid.VARIANTS:
+            final = {m: [0.5] * 5 for m in grid.METRICS}
+            final["return"] = [-10.0] * 5
+            final["danger_frequency"] = [danger(scenario, algo, variant) + o for o in offsets]
+            final["success_rate"] = [success(scenario, algo, variant) + o for o in offsets]
+            cells[(scenario, algo, variant)] = {
+                "scenario": scenario, "algo": algo, "variant": variant,
+                "final": final, "seeds": [0, 1, 2, 3, 4], "return_plateau": None,
+                "train_seconds_of_program": 1.0, "compile_seconds_of_program": 1.0,
+                "device": "cpu:cpu x1", "commit": "abc"}
+    settings = grid.Settings(lam=3.0, penalty=10.0, algos=("ippo", "mappo"),
+                             seeds=(0, 1, 2, 3, 4))
+    return statistics.summary(cells, settings, [], {}, {})
+
+
+def test_the_on_policy_section_counts_the_amendments_hypotheses_per_pair(monkeypatch):
+    """H-P1 holds where CCR's danger is significantly below plain's at success within 5
+    points; H-P2 where it is not significantly below the penalty's; the section says what
+    is not made yet."""
+    section = importlib.import_module("experiments.results_on_policy")
+
+    def danger(scenario, algo, variant):
+        if variant == "ccr":
+            return {"hidden_obstacle": 0.10, "turbulence": 0.10}.get(scenario, 0.30)
+        return {"plain": 0.30, "pessimistic": 0.20}[variant]
+
+    def success(scenario, algo, variant):  # in turbulence CCR costs MAPPO 10 points
+        return 0.80 if (scenario, algo, variant) == ("turbulence", "mappo", "ccr") else 0.90
+
+    tables = made_up_on_policy_tables(danger, success, monkeypatch)
+    found = section.hypotheses(tables)
+    assert found["H-P1"] == 3  # the obstacle's two and turbulence's IPPO
+    assert found["H-P2"] == 2  # the wind's two: CCR below the penalty elsewhere
+    assert [p["H-P1"] for p in found["pairs"]] == [True, True, True, False, False, False]
+    text = "\n".join(section.on_policy_section({}, tables))
+    assert "holds in 3 of 6 pairs (hidden obstacle, IPPO; hidden obstacle, MAPPO; " \
+           "turbulence, IPPO)" in text
+    assert "| turbulence, MAPPO | 30.0 / 20.0 / 10.0 ↓* ↓† | 90.0 / 90.0 / 80.0 ↓* ↓† |" in text
+    assert "lambda: not made yet (`python experiments/search.py --variant ccr" in text
+    assert "not made yet (`python experiments/tables.py" not in text
+    empty = "\n".join(section.on_policy_section({}, None))
+    assert "Their tables are not made yet (`python experiments/tables.py --algos ippo " \
+           "mappo" in empty
