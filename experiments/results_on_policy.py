@@ -16,9 +16,14 @@ from typing import Any
 
 from experiments import protocol
 from experiments.paper import PAPER_SCENARIOS
-from experiments.results_sections import interval, pair_name, pct, records_of, search_rows
-from experiments.tables_grid import VARIANTS
-from experiments.tables_report import welch_symbols
+from experiments.results_sections import (
+    pair_name,
+    pair_table,
+    pct,
+    records_of,
+    rliable_text,
+    search_rows,
+)
 
 FAMILY = protocol.ON_POLICY_ALGOS
 PAIRS = [(scenario, algo) for scenario in PAPER_SCENARIOS for algo in FAMILY]
@@ -74,40 +79,6 @@ def search_lines(searches: dict[str, dict[str, Any]]) -> list[str]:
     return lines
 
 
-def pair_table(result: dict[str, Any]) -> list[str]:
-    """Per pair: danger and success of plain / pessimistic / CCR, CCR's Welch marks."""
-    by_key = records_of(result)
-    lines = ["| pair | danger: plain / pessimistic / CCR | success: plain / pessimistic / "
-             "CCR |", "|---|---|---|"]
-    for scenario, algo in PAIRS:
-        cells = []
-        for metric in ("danger_frequency", "success_rate"):
-            records = [by_key[(scenario, algo, v)][metric] for v in VARIANTS]
-            cells.append(" / ".join(pct(r["mean"]) for r in records)
-                         + welch_symbols(records[-1].get("welch", {})))
-        lines.append(f"| {pair_name(scenario, algo)} | " + " | ".join(cells) + " |")
-    return lines + [""]
-
-
-def aggregates_text(result: dict[str, Any]) -> str:
-    """rliable's interquartile means and CCR's probabilities of improvement over the pairs."""
-    agg = result["aggregates"]
-    danger = {v: agg["danger_frequency"]["iqm"][v] for v in VARIANTS}
-    better = agg["danger_frequency"]["probability_of_improvement"]
-
-    def probability(value: dict[str, float]) -> str:
-        return f"{value['probability']:.2f} [{value['ci_low']:.2f}, {value['ci_high']:.2f}]"
-
-    return (f"rliable over the {len(PAIRS)} pairs (interquartile mean over seeds x pairs, "
-            "stratified bootstrap): danger " + ", ".join(
-                f"{interval(danger[v], 'iqm')} {v}" for v in VARIANTS)
-            + "; success " + ", ".join(
-                f"{pct(agg['success_rate']['iqm'][v]['iqm'], 2)}% {v}" for v in VARIANTS)
-            + ". The probability that a CCR run is safer than a plain run of the same pair "
-            f"{probability(better['plain'])}, than a pessimistic run "
-            f"{probability(better['pessimistic'])}.")
-
-
 def hypothesis_lines(result: dict[str, Any]) -> list[str]:
     found = hypotheses(result)
 
@@ -147,6 +118,6 @@ def on_policy_section(searches: dict[str, dict[str, Any]], tables: dict[str, Any
         f"pessimistic (penalty {settings['penalty']:g}) and CCR (lambda {settings['lam']:g}), "
         f"made on {', '.join(tables['devices'])}: [`{TABLES}/tables.md`]({TABLES}/tables.md). "
         "The final evaluation, mean over seeds in %, marked as in the paper's tables above:",
-        "", *pair_table(tables), aggregates_text(tables), "",
+        "", *pair_table(tables, PAIRS, paper=False), rliable_text(tables, len(PAIRS)), "",
         "The amendment's hypotheses, per pair:", "", *hypothesis_lines(tables), "",
     ]

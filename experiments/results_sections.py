@@ -58,20 +58,23 @@ def pair_name(scenario: str, algo: str) -> str:
 
 
 # ------------------------------------------------------------------------------ the tables
-def pair_table(result: dict[str, Any]) -> list[str]:
+def pair_table(result: dict[str, Any], pairs: list[tuple[str, str]] = PAIRS,
+               paper: bool = True) -> list[str]:
     """Per pair: danger and success of plain / pessimistic / CCR, with CCR's Welch marks
-    and the paper's numbers."""
+    and (``paper``) the paper's numbers."""
     by_key = records_of(result)
-    lines = ["| pair | danger: plain / pessimistic / CCR | the paper's | success: plain / "
-             "pessimistic / CCR | the paper's |", "|---|---|---|---|---|"]
-    for scenario, algo in PAIRS:
+    theirs = " the paper's |" if paper else ""
+    lines = [f"| pair | danger: plain / pessimistic / CCR |{theirs} success: plain / "
+             f"pessimistic / CCR |{theirs}", "|---|---|---|" + ("---|---|" if paper else "")]
+    for scenario, algo in pairs:
         cells = []
         for metric in ("danger_frequency", "success_rate"):
             records = [by_key[(scenario, algo, v)][metric] for v in VARIANTS]
             ours = " / ".join(pct(r["mean"]) for r in records)
-            ours += welch_symbols(records[-1].get("welch", {}))
-            paper = " / ".join(pct(PAPER[metric][(scenario, algo, v)]) for v in VARIANTS)
-            cells += [ours, paper]
+            cells.append(ours + welch_symbols(records[-1].get("welch", {})))
+            if paper:
+                cells.append(" / ".join(pct(PAPER[metric][(scenario, algo, v)])
+                                        for v in VARIANTS))
         lines.append(f"| {pair_name(scenario, algo)} | " + " | ".join(cells) + " |")
     return lines + [""]
 
@@ -131,7 +134,7 @@ def scorecard(tables: dict[str, dict[str, Any]]) -> list[str]:
     return lines + [""]
 
 
-def rliable_text(result: dict[str, Any]) -> str:
+def rliable_text(result: dict[str, Any], pairs: int = len(PAIRS)) -> str:
     agg = result["aggregates"]
     iqm = {m: {v: agg[m]["iqm"][v] for v in VARIANTS}
            for m in ("danger_frequency", "success_rate")}
@@ -141,7 +144,7 @@ def rliable_text(result: dict[str, Any]) -> str:
     def probability(value: dict[str, float]) -> str:
         return f"{value['probability']:.2f} [{value['ci_low']:.2f}, {value['ci_high']:.2f}]"
 
-    return ("rliable over the 9 pairs (interquartile mean over seeds x pairs, stratified "
+    return (f"rliable over the {pairs} pairs (interquartile mean over seeds x pairs, stratified "
             "bootstrap): danger " + ", ".join(
                 f"{interval(iqm['danger_frequency'][v], 'iqm')} {v}" for v in VARIANTS)
             + "; success " + ", ".join(f"{pct(iqm['success_rate'][v]['iqm'], 2)}% {v}"
