@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from ccrjax.training import ALGOS
-from experiments.budgets import on_policy_lines
+from experiments.budgets_report import on_policy_lines
 from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_SCENARIOS
 from experiments.regimes import chosen_regime_lines
 from experiments.tables_grid import LEARNER_NAMES, SCENARIO_NAMES, VARIANTS

@@ -41,6 +41,11 @@ def budgets():
     return load("budgets")
 
 
+@pytest.fixture(scope="module")
+def budgets_report():
+    return load("budgets_report")
+
+
 def refused(module, argv, capsys, *fragments):
     with pytest.raises(SystemExit) as exit_:
         module.main(argv)
@@ -102,23 +107,23 @@ def test_budgets_refuse_bad_input(budgets, argv, fragments, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_the_proposed_budget_is_where_the_return_stays_level(budgets):
+def test_the_proposed_budget_is_where_the_return_stays_level(budgets_report):
     """Made-up curves evaluated every 100 steps: rising until 1,000, then flat; a rise after
     a flat stretch moves the proposal past it; a curve rising to the end has none."""
     steps = np.arange(0, 2001, 100)
     noise = np.array([[0.0], [0.1], [-0.1]])
     rising_then_flat = np.minimum(steps, 1000) / 100 + noise
     candidates = list(range(500, 2001, 500))
-    checks, proposed = budgets.check_budgets(steps, rising_then_flat, candidates)
+    checks, proposed = budgets_report.check_budgets(steps, rising_then_flat, candidates)
     assert [c["budget"] for c in checks] == candidates
     assert [c["plateaued"] for c in checks] == [False, False, True, True]
     assert proposed == 1500
     relapse = rising_then_flat + np.where(steps > 1600, (steps - 1600) / 100, 0.0)
-    assert budgets.check_budgets(steps, relapse, candidates)[1] is None
-    assert budgets.check_budgets(steps, steps / 100 + noise, candidates)[1] is None
+    assert budgets_report.check_budgets(steps, relapse, candidates)[1] is None
+    assert budgets_report.check_budgets(steps, steps / 100 + noise, candidates)[1] is None
 
 
-def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budgets):
+def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budgets_report):
     """The longer-budget check's rule (docs/protocol.md, amendment of 2026-11-26) on made-up
     checks: the smallest candidate at which every cell passes, even where a cell passed at
     a smaller one; the largest, flagged with the cells that fail there, where none does."""
@@ -128,14 +133,14 @@ def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budge
 
     cells = [cell("a", {3: True, 4: False, 6: True}), cell("b", {3: False, 4: True, 6: True}),
              cell("c", {3: True, 4: True, 6: True})]
-    rule = budgets.one_budget_for_all(cells)
+    rule = budgets_report.one_budget_for_all(cells)
     assert (rule["budget"], rule["passed"]) == (6, True)
     assert rule["failing"] == {3: ["b-iddpg"], 4: ["a-iddpg"], 6: []}
     cells[0]["checks"][1]["plateaued"] = True
-    assert budgets.one_budget_for_all(cells)["budget"] == 4
+    assert budgets_report.one_budget_for_all(cells)["budget"] == 4
     cells[2]["checks"][2]["plateaued"] = None  # undetermined counts as not passing
     cells[1]["checks"][1]["plateaued"] = False
-    rule = budgets.one_budget_for_all(cells)
+    rule = budgets_report.one_budget_for_all(cells)
     assert (rule["budget"], rule["passed"]) == (6, False)
     assert rule["failing"][6] == ["c-iddpg"]
     # The summary says it once every scenario and learner of the paper has its cell.
@@ -143,23 +148,23 @@ def test_one_budget_for_all_is_the_smallest_candidate_every_learner_passes(budge
         {"budget": b, "plateaued": b >= (4_500_000 if (s, a) == ("turbulence", "maac") else
                                          3_000_000), "last": 1.0, "previous": 0.5}
         for b in (3_000_000, 4_500_000, 6_000_000)]}
-        for a in budgets.ALGOS for s in budgets.PAPER_SCENARIOS]
+        for a in budgets_report.ALGOS for s in budgets_report.PAPER_SCENARIOS]
     named = {"candidate_budgets": [3_000_000, 4_500_000, 6_000_000]}
-    assert budgets.rule_lines({"cells": nine, "settings": {"candidate_budgets": []}}) == []
-    text = "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
+    assert budgets_report.rule_lines({"cells": nine, "settings": {"candidate_budgets": []}}) == []
+    text = "\n".join(budgets_report.rule_lines({"cells": nine, "settings": named}))
     assert "| maac | turbulence | **no** (+0.50) | yes (+0.50) | yes (+0.50) |" in text
     assert "every plain learner's check passes): **4,500,000** steps." in text
     fewer = {"cells": nine[1:], "settings": named}
-    assert "not yet, 8 of the 9" in "\n".join(budgets.rule_lines(fewer))
+    assert "not yet, 8 of the 9" in "\n".join(budgets_report.rule_lines(fewer))
     for cell in nine:  # IDDPG fails everywhere: the largest candidate, flagged
         for check in cell["checks"]:
             check["plateaued"] = check["plateaued"] and cell["algo"] != "iddpg"
     assert ("no candidate passes for every plain learner, so **6,000,000** steps, flagged: at "
             "it the check fails for hidden_obstacle-iddpg, turbulence-iddpg, strong_wind-iddpg"
-            ) in "\n".join(budgets.rule_lines({"cells": nine, "settings": named}))
+            ) in "\n".join(budgets_report.rule_lines({"cells": nine, "settings": named}))
 
 
-def test_the_on_policy_budget_is_the_largest_proposed_by_their_six_cells(budgets):
+def test_the_on_policy_budget_is_the_largest_proposed_by_their_six_cells(budgets_report):
     """The on-policy learners' rule (docs/protocol.md, amendment of 2026-12-02): the largest
     proposed budget of the six plain cells on the budget seeds; the budgets run's length,
     flagged with the cells still moving, where one proposes none; nothing before all six."""
@@ -171,16 +176,17 @@ def test_the_on_policy_budget_is_the_largest_proposed_by_their_six_cells(budgets
     cells.append({"scenario": "hidden_obstacle", "algo": "maddpg", "budget": 3_000_000,
                   "proposed_budget": 3_000_000})  # not of the family: ignored
     result = {"cells": cells, "settings": {"seeds": [200, 201, 202]}}
-    assert budgets.on_policy_budget(cells[:6], 4_000_000) == {
+    assert budgets_report.on_policy_budget(cells[:6], 4_000_000) == {
         "budget": 2_250_000, "passed": True, "moving": []}
-    assert "their 6 cells): **2,250,000** steps." in "\n".join(budgets.on_policy_lines(result))
-    assert "not yet, 5 of them" in "\n".join(budgets.on_policy_lines(
+    assert "their 6 cells): **2,250,000** steps." in "\n".join(
+        budgets_report.on_policy_lines(result))
+    assert "not yet, 5 of them" in "\n".join(budgets_report.on_policy_lines(
         {**result, "cells": cells[1:]}))
     cells[4]["proposed_budget"] = None
-    text = "\n".join(budgets.on_policy_lines(result))
+    text = "\n".join(budgets_report.on_policy_lines(result))
     assert ("**4,000,000** steps (the budgets run's length), flagged: the return was still "
             "moving at the end for turbulence-mappo.") in text
-    assert budgets.on_policy_lines({**result, "settings": {"seeds": list(range(10))}}) == []
+    assert budgets_report.on_policy_lines({**result, "settings": {"seeds": list(range(10))}}) == []
 
 
 def test_the_tables_seeds_check_runs_the_protocols_longer_budget(budgets):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments import budgets, protocol, regimes, search
+from experiments import budgets, budgets_report, protocol, regimes, search
 from experiments.ledger import expected_training, settings_record
 
 RESULTS = Path(__file__).resolve().parent.parent / "experiments" / "results"
@@ -87,16 +87,16 @@ def test_a_regimes_budget_is_the_smallest_candidate_where_every_study_pair_level
     cells = [cell("hidden_obstacle", {1_200_000: True, 2_400_000: True, 3_000_000: True}),
              cell("turbulence", {1_200_000: False, 2_400_000: True, 3_000_000: True}),
              cell("strong_wind", {1_200_000: False, 2_400_000: False, 3_000_000: False})]
-    text = "\n".join(budgets.rule_lines({"cells": cells, "settings": settings}))
+    text = "\n".join(budgets_report.rule_lines({"cells": cells, "settings": settings}))
     assert "The `column` regime's budget (the smallest" in text
     assert "**2,400,000** steps." in text
     assert "not yet, 1 of the 2" in "\n".join(
-        budgets.rule_lines({"cells": cells[:1], "settings": settings}))
+        budgets_report.rule_lines({"cells": cells[:1], "settings": settings}))
     for check in cells[1]["checks"]:
         check["plateaued"] = False
     assert ("no candidate passes for every plain learner, so **3,000,000** steps, flagged: "
             "at it the check fails for turbulence-maddpg") in "\n".join(
-        budgets.rule_lines({"cells": cells, "settings": settings}))
+        budgets_report.rule_lines({"cells": cells, "settings": settings}))
 
 
 def search_settings(**fields) -> search.Settings:
