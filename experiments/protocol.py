@@ -240,7 +240,7 @@ def run_config(settings: Settings, scenario: str, algo: str, variant: str,
                        layout_params=dict(regime.layout_params))
     if settings.quick:
         base = quick(base, regime.quick_episode_length)
-    config = dataclasses.replace(base, total_env_steps=budget(algo, settings.steps),
+    config = dataclasses.replace(base, total_env_steps=settings.budget(algo),
                                  eval_every=settings.eval_every,
                                  eval_episodes=settings.eval_episodes, **fields)
     if variant == "lagrangian" and "transform" not in fields:

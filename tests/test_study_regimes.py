@@ -127,6 +127,8 @@ def test_a_search_is_the_protocols_over_the_tables_or_the_studys_pairs(monkeypat
     monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {"maddpg": 2_400_000})
     settings = search_settings(**column)
     assert settings.budget("maddpg") == 2_400_000
+    # The runs train for the budget the cells record (the regime's, not today's 3M).
+    assert settings.config("turbulence", "maddpg").total_env_steps == 2_400_000
     assert search.not_the_protocols(settings) is None
     assert search.not_the_protocols(search_settings(**column, steps=3_000_000)) == (
         "--steps 3000000")
