@@ -158,7 +158,7 @@ def cell_identity(record: dict[str, Any], algo: str, budget: int | None = None
 
 # Transform parameters that a grid varies or the settings name (the searched values, the
 # tables' selected ones), left out of a cell's training record.
-SEARCHED_FIELDS = ("lam", "penalty")
+SEARCHED_FIELDS = ("lam", "penalty", "cost_limit")
 
 
 def training_record(config: TrainConfig) -> dict[str, Any]:

@@ -9,7 +9,7 @@ hidden obstacle and turbulence with MADDPG; ``--algos ippo mappo`` the on-policy
 ``--scenarios`` may add the wind, the negative control) it trains plain and pessimistic
 together (plain is the penalty 0, exactly), CCR, CCR's four parts (``ccr_scores``,
 ``ccr_reward``, ``ccr_perfect``, ``danger_flags``) and the Lagrangian, each on the tables'
-seeds (10 by default, ``--seeds 5`` the amendment's least) at the regime's budget, as the
+seeds (0-4 by default, the addition of 2026-12-03; up to 10) at the regime's budget, as the
 tables' programs do (:mod:`experiments.tables_grid`: resumable, cells written as they
 finish). Each cell also holds the study's own measures (:mod:`experiments.study_measures`:
 the forewarned share, the followers' distance, danger and success), per seed; the
@@ -73,6 +73,9 @@ VARIANTS = tuple(v for program in PROGRAMS for v in program)
 SEARCHED = tuple(v for v in VARIANTS if v in SEARCHED_PARAMETER)
 QUICK_VALUES = {"pessimistic": 3.0, "ccr": 3.0, "ccr_reward": 3.0, "ccr_perfect": 3.0,
                 "lagrangian": 0.05}
+# The study's seeds (docs/protocol.md, addition of 2026-12-03): the tables' first five; its
+# analysis is made on these even where a cell holds more.
+STUDY_SEEDS = 5
 # The tables' searches, whose cells hold the study's pairs in the tables' regime.
 TABLES_SEARCHES = {"ccr": RESULTS / "search" / "ccr",
                    "pessimistic": RESULTS / "search" / "pessimistic"}
@@ -111,11 +114,18 @@ class Settings(protocol.Settings):
 
 def chosen_value(variant: str, regime: str, algos: tuple[str, ...], folder: Path
                  ) -> float:
+    """The value of :func:`chosen` (the protocol's choice of ``variant``'s parameter)."""
+    return float(chosen(variant, regime, algos, folder)["value"])
+
+
+def chosen(variant: str, regime: str, algos: tuple[str, ...], folder: Path
+           ) -> dict[str, Any]:
     """The protocol's choice of ``variant``'s parameter for the study in ``regime``: the
     selection rule applied over the study's pairs to the search cells in ``folder``, made
     on the selection seeds at the regime's budget and evaluations
-    (:func:`experiments.search.not_the_protocols`). Raises :class:`ccrjax.cli.UsageError`
-    naming the search to run when a cell is missing or the choice is provisional."""
+    (:func:`experiments.search.not_the_protocols`), as the rule gives it (``value``,
+    ``fallback``: no value met the rule). Raises :class:`ccrjax.cli.UsageError` naming the
+    search to run when a cell is missing or the choice is provisional."""
     pairs = protocol.study_pairs(algos)
     settings = search.Settings(
         variant=variant, values=protocol.SEARCHED[variant][1], regime=regime,
@@ -135,7 +145,14 @@ def chosen_value(variant: str, regime: str, algos: tuple[str, ...], folder: Path
         raise cli.UsageError(f"the {variant} search in {folder} is provisional "
                              f"({chosen['provisional_because']}): finish {command}, or give "
                              f"--value {variant} VALUE")
-    return float(chosen["value"])
+    return chosen
+
+
+def shown(folder: Path) -> str:
+    """``folder`` as a record names it: relative to the repository where it is inside."""
+    root = RESULTS.parent.parent
+    resolved = Path(folder).resolve()
+    return str(resolved.relative_to(root)) if resolved.is_relative_to(root) else str(folder)
 
 
 def search_folder(variant: str, regime: str, searches: Path) -> Path:
@@ -168,8 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--searches", type=Path, default=None,
                         help="the folder of the regime's searches, one per variant (default: "
                         "experiments/results/study/<regime>/search)")
-    parser.add_argument("--seeds", type=cli.int_in(5, 10), default=len(protocol.TABLE_SEEDS),
-                        help="the tables' seeds from 0, 5 to 10 (default: %(default)s)")
+    parser.add_argument("--seeds", type=cli.int_in(5, 10), default=STUDY_SEEDS,
+                        help="the tables' seeds from 0, 5 to 10 (default: %(default)s, the "
+                        "addition of 2026-12-03)")
     parser.add_argument("--scenarios", nargs="+", choices=PAPER_SCENARIOS,
                         default=list(protocol.STUDY_SCENARIOS),
                         help="scenarios (default: the study's; strong_wind: the negative "
@@ -223,8 +241,10 @@ def settings_from(args: argparse.Namespace) -> tuple[Settings, dict[str, str]]:
             values[variant], sources[variant] = QUICK_VALUES[variant], "the quick mode's"
         else:
             folder = search_folder(variant, args.regime, searches)
-            values[variant] = chosen_value(variant, args.regime, tuple(args.algos), folder)
-            sources[variant] = f"the search in {folder}"
+            choice = chosen(variant, args.regime, tuple(args.algos), folder)
+            values[variant] = float(choice["value"])
+            sources[variant] = f"the search in {shown(folder)}" + (
+                " (its fallback: no value met the rule)" if choice["fallback"] else "")
     fields: dict[str, Any] = {
         "values": values, "regime": args.regime, "seeds": tuple(range(args.seeds)),
         "scenarios": tuple(dict.fromkeys(args.scenarios)),

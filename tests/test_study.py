@@ -145,6 +145,10 @@ def test_the_study_runs_end_to_end_in_the_column_and_resumes_without_training(tm
         assert cell["training"]["layout"]["formation"] == "column"
         assert len(cell["measures"]["followers_success"]) == 2
     assert study.main([*argv, "--no-train"]) == 0
+    # The report keeps every cell the protocol's (quick) study makes, and leaves none out.
+    assert report.main(["--out", str(tmp_path), "--column", str(out)]) == 0
+    text = (tmp_path / "study.md").read_text()
+    assert "Left out" not in text and "| turbulence | MADDPG | lagrangian |" in text
 
 
 def made_up(danger: list[float], success: float = 0.9) -> dict:
@@ -216,35 +220,67 @@ def test_a_cells_row_and_the_regimes_aggregates():
     assert found["ccr_safer_than_plain"]["probability"] == pytest.approx(1.0)
 
 
-def test_the_report_states_each_variants_effect_and_the_hypotheses(tmp_path, capsys):
+def study_record(regime: str, variant: str, seeds: int = 5, value: float = 3.0) -> dict:
+    """The settings record of a study cell of ``variant`` as study.py writes it, every
+    searched value ``value``."""
+    program = next(p for p in study.PROGRAMS if variant in p)
+    settings = study.Settings(values={v: value for v in program if v in study.SEARCHED},
+                              regime=regime, seeds=tuple(range(seeds)),
+                              eval_every=protocol.REGIMES[regime].eval_every)
+    return settings_record(settings.for_program(program))
+
+
+def test_the_report_states_each_variants_effect_and_the_hypotheses(tmp_path, capsys,
+                                                                     monkeypatch):
     """Made-up cells of both regimes written as study.py writes them: the effects are
-    signed so that better is positive, the report gives every hypothesis its verdict, and
-    a folder without a study is one line."""
+    signed so that better is positive, the report gives every hypothesis its verdict on the
+    study's seeds 0-4 (a cell of ten seeds is cut to them), leaves out and names a cell
+    made with another value than its search chose, and a folder without a study is one
+    line."""
+    monkeypatch.setattr(study, "chosen", lambda *args: {"value": 3.0, "fallback": False})
     for regime, ccr in (("today", 0.30), ("column", 0.20)):
         folder = tmp_path / regime
         (folder / "cells").mkdir(parents=True)
         (folder / "study_cells.json").write_text("{}")
-        for variant, level in (("plain", 0.30), ("ccr", ccr), ("danger_flags", 0.25)):
-            cell = {**made_up(list(level + SPREAD)), "scenario": "turbulence",
-                    "algo": "maddpg", "variant": variant, "seeds": [0, 1, 2, 3, 4],
-                    "settings": {"regime": regime, "quick": False}}
+        for variant, level in (("plain", 0.30), ("ccr", ccr), ("danger_flags", 0.25),
+                               ("ccr_reward", 0.1)):
+            seeds = 10 if (regime, variant) == ("column", "ccr") else 5
+            danger = list(level + SPREAD)
+            if seeds == 10:  # seeds 5-9 far below: the primary analysis must not see them
+                danger += [0.0] * 5
+            cell = {**made_up(danger), "scenario": "turbulence", "algo": "maddpg",
+                    "variant": variant, "seeds": list(range(seeds)), "budget": 3_000_000,
+                    "settings": study_record(regime, variant, seeds,
+                                             1.0 if variant == "ccr_reward" else 3.0)}
+            cell["measures"]["forewarned_share"] = [0.5] * seeds
             (folder / "cells" / f"turbulence-maddpg-{variant}.json").write_text(
                 json.dumps(cell))
     cells = {**report.read_cells(tmp_path / "today", "today"),
              **report.read_cells(tmp_path / "column", "column")}
-    assert len(cells) == 6
-    found = report.effect(cells, "column", "turbulence", "maddpg", "ccr", "danger_frequency")
+    assert len(cells) == 8
+    primary, whole, values, left_out = report.protocol_cells(
+        cells, {"today": tmp_path / "s", "column": tmp_path / "s"})
+    assert len(primary) == 6 and len(left_out) == 2  # ccr_reward made at lambda 1, not 3
+    assert all("ccr_reward: made with other values" in line for line in left_out)
+    assert len(primary[("column", "turbulence", "maddpg", "ccr")]["seeds"]) == 5
+    assert len(whole[("column", "turbulence", "maddpg", "ccr")]["seeds"]) == 10
+    assert values["column"]["ccr"].startswith("3 (the search in")
+    found = report.effect(primary, "column", "turbulence", "maddpg", "ccr", "danger_frequency")
     assert found["effect"] == pytest.approx(0.10) and found["ci_low"] > 0
-    assert report.effect(cells, "column", "turbulence", "maddpg", "ccr_reward",
+    assert report.effect(primary, "column", "turbulence", "maddpg", "ccr_reward",
                          "danger_frequency") is None
     assert report.main(["--out", str(tmp_path)]) == 0
     text = (tmp_path / "study.md").read_text()
-    assert "* H1 (today: CCR's danger is plain's): **holds**" in text
+    assert "* H1 (today: CCR's danger is plain's): **holds**, CCR's danger +0.0%" in text
     assert "* H2 (column: CCR's danger below plain's, success within 5 points): **holds**" in text
-    assert "* H3 (CCR's effect larger in the column): **holds**" in text
+    assert "* H3 (CCR's effect larger in the column): **holds**, +10.0%" in text
     assert "H4 column/danger_flags, danger against plain: -5.0%" in text
     assert "* `column` (turbulence-maddpg): interquartile mean of danger plain 30.0%" in text
+    assert "; of success plain 90.0%" in text
     assert "P(a CCR run is safer than a plain one) 1.00" in text
+    assert "* column: turbulence-maddpg-ccr_reward: made with other values" in text
+    assert "Values: " in text and "Budget: 3,000,000 steps per run" in text
+    assert "## Hypotheses on every seed made" in text and "waits until every cell" in text
     assert (tmp_path / "effects.png").stat().st_size > 0
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_:
