@@ -65,6 +65,7 @@ from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
 from experiments import protocol
 from experiments.ledger import (
+    RESULTS,
     STOPPED_KEPT,
     Partial,
     add_checkpoint_option,
@@ -136,23 +137,24 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
 
 def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None:
     """For a lambda search (CCR's or a part's), the penalty search's cells of the same pairs,
-    when its folder
-    (``pessimistic`` beside ``out``) holds them all with the same seeds and budgets: their
-    value 0 is exactly the plain learner, while lambda 0 still observes the shared scores.
-    ``None`` otherwise (then no check is made)."""
+    when its folder (``pessimistic`` beside ``out``; in the tables' regime also the
+    committed tables' penalty search, which holds the study's pairs too) holds them all
+    with the same seeds and budgets: their value 0 is exactly the plain learner, while
+    lambda 0 still observes the shared scores. ``None`` otherwise (then no check is made)."""
     if protocol.SEARCHED[settings.variant][0] != "lam":
         return None
     # What the penalty search's cells hold when made with these seeds, budgets and
     # evaluations (its own protocol values).
     record = settings_record(dataclasses.replace(
         settings, variant="pessimistic", values=protocol.SEARCHED["pessimistic"][1]))
-    found = {}
-    for scenario, algo in cells:
-        cell = read_json(cell_path(out.parent / "pessimistic", scenario, algo))
-        if not cell_is_current(cell, record):
-            return None
-        found[(scenario, algo)] = cell
-    return found
+    folders = [out.parent / "pessimistic"]
+    if settings.regime == protocol.DEFAULT_REGIME:
+        folders.append(RESULTS / "search" / "pessimistic")
+    for folder in folders:
+        found = {pair: read_json(cell_path(folder, *pair)) for pair in cells}
+        if all(cell_is_current(cell, record) for cell in found.values()):
+            return found
+    return None
 
 
 def aggregate_rows(settings: Settings, cells: dict) -> list[dict[str, Any]]:

@@ -165,6 +165,13 @@ def test_a_parts_lambda_search_takes_the_penalty_searchs_exact_plain_runs(tmp_pa
     assert set(search.exact_plain_cells(settings, tmp_path / "ccr_perfect", cells)) == set(cells)
     assert search.exact_plain_cells(dataclasses.replace(settings, variant="lagrangian"),
                                     tmp_path / "lagrangian", cells) is None
+    # In today's regime, without a penalty search beside it, the committed tables' one
+    # (which holds the study's pairs at 3M on the selection seeds); in another, none.
+    found = search.exact_plain_cells(settings, tmp_path / "today" / "ccr_perfect", cells)
+    assert set(found) == set(cells)
+    assert all(cell["rows"][0]["value"] == 0.0 for cell in found.values())
+    column = search_settings(variant="ccr_perfect", regime="column", eval_every=120_000, **STUDY)
+    assert search.exact_plain_cells(column, tmp_path / "column" / "ccr_perfect", cells) is None
 
 
 @pytest.mark.slow  # two quick pipelines: about 40 s
