@@ -82,11 +82,28 @@ def training_danger(cell: dict[str, Any], values: dict[str, list[float]],
     return [count / robot_steps for count in values["learning_danger_steps"]]
 
 
+def last_interval_danger(cell: dict[str, Any], steps: int) -> list[float]:
+    """Per seed, the share of robot-steps in danger in the training episodes of the last
+    evaluation interval before ``steps``: what the multiplier regulates (the training
+    policy's danger, exploration included; the limit is met in training where it is at
+    most the limit), beside the greedy policy's evaluated danger."""
+    history = cell["history"]
+    env_steps = [int(s) for s in history["env_steps"][0]]
+    where = f"{cell['scenario']}-{cell['algo']}-{cell['variant']}"
+    index = point_index(env_steps, steps, where)
+    if index == 0:
+        raise ValueError(f"{where}: no evaluation interval ends at {steps:,} steps")
+    robot_steps = (env_steps[index] - env_steps[index - 1]) * int(cell["training"]["num_robots"])
+    return [float(curve[index] - curve[index - 1]) / robot_steps
+            for curve in history["learning_danger_steps"]]
+
+
 def pair_rows(tables: dict[tuple[str, str, str], dict], steps: int, cost_limit: float
               ) -> dict[tuple[str, str], dict[str, Any]]:
-    """Per pair, each variant's per-seed danger, success and training danger at ``steps``,
-    the Welch tests of the Lagrangian against each baseline, and which Lagrangian seeds meet
-    the limit (final danger at most ``cost_limit``)."""
+    """Per pair, each variant's per-seed danger, success and training danger at ``steps``
+    (and the last interval's training danger), the Welch tests of the Lagrangian against
+    each baseline, and which Lagrangian seeds meet the limit (final evaluated danger at most
+    ``cost_limit``; in training, the last interval's danger at most it)."""
     rows = {}
     for scenario, algo in PAIRS:
         variants = {}
@@ -97,6 +114,7 @@ def pair_rows(tables: dict[tuple[str, str, str], dict], steps: int, cost_limit: 
                 "danger_frequency": values["danger_frequency"],
                 "success_rate": values["success_rate"],
                 "training_danger": training_danger(cell, values, steps),
+                "last_interval_danger": last_interval_danger(cell, steps),
             }
         lagrangian = variants["lagrangian"]
         rows[(scenario, algo)] = {
@@ -106,6 +124,8 @@ def pair_rows(tables: dict[tuple[str, str, str], dict], steps: int, cost_limit: 
                                             "training_danger")}
                       for base in BASELINES},
             "meets_limit": [d <= cost_limit for d in lagrangian["danger_frequency"]],
+            "meets_limit_in_training": [d <= cost_limit
+                                        for d in lagrangian["last_interval_danger"]],
         }
     return rows
 

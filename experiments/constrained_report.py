@@ -147,10 +147,14 @@ def markdown(result: dict[str, Any]) -> str:
     for key, row in result["pairs"].items():
         scenario, algo = key.split("-")
         met = sum(row["meets_limit"])
+        in_training = sum(row.get("meets_limit_in_training", []))
         lines += ["", f"## {SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]}", "",
-                  f"Lagrangian seeds meeting the limit (final danger at most {limit:g}): "
-                  f"{met} of {len(row['meets_limit'])}.", "",
-                  "| variant | danger | success | training danger |", "|---|---|---|---|"]
+                  f"Lagrangian seeds meeting the limit (final evaluated danger at most "
+                  f"{limit:g}): {met} of {len(row['meets_limit'])}; in training (the last "
+                  f"interval's danger of the training episodes, what the multiplier "
+                  f"regulates): {in_training} of {len(row['meets_limit'])}.", "",
+                  "| variant | danger | success | training danger | training danger, last "
+                  "interval |", "|---|---|---|---|---|"]
         for variant, values in row["variants"].items():
             marks = ({m: _mark(row["welch"][variant][m]) for m in row["welch"][variant]}
                      if variant in row["welch"] else {})
@@ -158,7 +162,8 @@ def markdown(result: dict[str, Any]) -> str:
                          f"{marks.get('danger_frequency', '')} | "
                          f"{_cell(values['success_rate'])}{marks.get('success_rate', '')} | "
                          f"{_cell(values['training_danger'])}"
-                         f"{marks.get('training_danger', '')} |")
+                         f"{marks.get('training_danger', '')} | "
+                         f"{_cell(values['last_interval_danger'])} |")
     lines += ["", "## Over the 9 pairs (rliable)", "",
               "| metric | " + " | ".join(NAMES[v] for v in (*BASELINES, "lagrangian"))
               + " | P(Lagrangian better than plain / pessimistic / CCR) | P(CCR better than "

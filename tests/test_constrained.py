@@ -90,6 +90,13 @@ def test_each_lagrangian_seed_is_checked_against_the_limit():
     assert row["meets_limit"] == [True, True, False]  # 0.04, 0.05, 0.06
     # The training danger: 1000 dangerous robot-steps over (400 - 100) steps x 5 robots.
     assert row["variants"]["plain"]["training_danger"][1] == pytest.approx(1000 / 1500)
+    # The last interval's training danger (what the multiplier regulates): the dangerous
+    # robot-steps counted from 200 to 400 over 200 steps x 5 robots.
+    assert row["variants"]["lagrangian"]["last_interval_danger"] == pytest.approx(
+        [(1000 + d - 0.5) / 1000 for d in (-0.01, 0.0, 0.01)])
+    assert row["meets_limit_in_training"] == [False, False, False]
+    assert pair_rows(cells, BUDGET, cost_limit=0.9995)[PAIRS[0]]["meets_limit_in_training"] == [
+        True, True, False]
     assert row["welch"]["plain"]["danger_frequency"]["difference"] == pytest.approx(-0.25)
     assert row["welch"]["plain"]["danger_frequency"]["significant"]
     found = hypotheses(rows, cost_limit=0.05)
@@ -121,6 +128,7 @@ def test_the_report_says_what_the_cells_hold(tmp_path):
     assert result["selections_at_budget"]["lagrangian"]["value"] == 0.05
     assert "lacks" in result["selections_at_budget"]["ccr"]["missing"]
     assert "cost limit **0.05**" in text and "2 of 3" in text
+    assert "what the multiplier regulates): 0 of 3" in text
     assert result["tables_values"]["pessimistic"] == {"penalty": [3.0]}
     assert [f.name for f in figures] == [f"multiplier_{s}.png" for s in
                                          ("hidden_obstacle", "strong_wind", "turbulence")]

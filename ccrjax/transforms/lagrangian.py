@@ -48,7 +48,9 @@ class Lagrangian(Plain):
     cost_limit: float = 0.05  # d: the per-robot danger frequency allowed
     controller: str = "pid"  # "pid", or "ascent" (integral only: gradient ascent at rate ki)
     kp: float = 1.0  # proportional gain, on the smoothed danger error
-    ki: float = 0.2  # integral gain: the multiplier's ascent rate per unit of error
+    # integral gain: the multiplier's ascent per update per unit of error (docs/protocol.md,
+    # addition of 2026-12-03: at 0.2 its integral of a plain learner's early danger winds up)
+    ki: float = 0.02
     kd: float = 1.0  # derivative gain, on the rise of the smoothed danger
     ema_p: float = 0.9  # smoothing of the error for the proportional term
     ema_d: float = 0.9  # smoothing of the danger for the derivative term
