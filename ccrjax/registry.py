@@ -53,6 +53,8 @@ class TransformEntry:
     type: type
     from_record: Callable[[dict[str, Any]], Any]
     option_prefix: str | None = None
+    # The transform of a run that names none, from the run's TrainConfig (None: type()).
+    defaults: Callable[[Any], Any] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,15 +104,19 @@ def _check_dataclass(kind: str, name: str, cls: Any) -> None:
 
 def register_transform(name: str, transform_type: type, *,
                        from_record: Callable[[dict[str, Any]], Any] | None = None,
-                       option_prefix: str | None = None, replace: bool = False) -> type:
+                       option_prefix: str | None = None,
+                       defaults: Callable[[Any], Any] | None = None,
+                       replace: bool = False) -> type:
     """Registers ``transform_type`` as variant ``name``; ``from_record`` rebuilds it from its
-    ``config.json`` fields (default: ``transform_type(**fields)``). Returns the type."""
+    ``config.json`` fields (default: ``transform_type(**fields)``); ``defaults(config)`` is
+    the transform of a run that names none (default: ``transform_type()``). Returns the
+    type."""
     old = _TRANSFORMS[name].type if isinstance(name, str) and name in _TRANSFORMS else None
     _check_new("transform", name, old, transform_type, replace)
     _check_dataclass("transform", name, transform_type)
     _TRANSFORMS[name] = TransformEntry(
         name, transform_type, from_record or (lambda fields: transform_type(**fields)),
-        option_prefix)
+        option_prefix, defaults)
     return transform_type
 
 
@@ -181,7 +187,8 @@ for _name, _cls in (("ccr", CCR), ("ccr_scores", CCRScores), ("ccr_reward", CCRR
                     ("ccr_perfect", CCRPerfect)):
     register_transform(_name, _cls, from_record=_ccr_family(_cls))
 register_transform("danger_flags", DangerFlags)
-register_transform("lagrangian", Lagrangian, option_prefix="lagrange")
+register_transform("lagrangian", Lagrangian, option_prefix="lagrange",
+                   defaults=Lagrangian.for_run)
 register_learner("iddpg", DDPGConfig, DDPG, default_budget=400_000,
                  configure=_centralised(False), option_prefix="ddpg")
 register_learner("maddpg", DDPGConfig, DDPG, default_budget=400_000,

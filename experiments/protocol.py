@@ -15,7 +15,6 @@ from ccrjax.agents.ddpg import DDPGConfig
 from ccrjax.agents.maac import MAACConfig
 from ccrjax.agents.ppo import PPOConfig
 from ccrjax.training import ALGOS, TrainConfig
-from ccrjax.transforms.lagrangian import Lagrangian
 from experiments.paper import PAPER_SCENARIOS
 from experiments.selection import SelectionRule
 
@@ -243,21 +242,11 @@ def run_config(settings: Settings, scenario: str, algo: str, variant: str,
     config = dataclasses.replace(base, total_env_steps=settings.budget(algo),
                                  eval_every=settings.eval_every,
                                  eval_episodes=settings.eval_episodes, **fields)
-    if variant == "lagrangian" and "transform" not in fields:
-        config = dataclasses.replace(config, transform=lagrangian(config))
     notes = config.schedule()["notes"]
     if notes:
         raise ValueError("; ".join(notes) + " (an experiment runs exactly what it records: "
                          "give whole evaluation intervals)")
     return config
-
-
-def lagrangian(config: TrainConfig) -> Lagrangian:
-    """The Lagrangian's settings, fixed by the amendment of 2026-12-02: the default PID gains,
-    and the multiplier held at 0 through the random warm-up (``config``'s learning start, in
-    training episodes)."""
-    return Lagrangian(warmup_episodes=-(-config.learning_starts_transitions
-                                        // config.steps_per_iteration))
 
 
 def quick(config: TrainConfig, episode_length: int = QUICK_EPISODE_LENGTH) -> TrainConfig:

@@ -137,8 +137,8 @@ def train_cell(settings: Settings, scenario: str, algo: str, partial: Partial
 
 def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None:
     """For a lambda search (CCR's or a part's), the penalty search's cells of the same pairs,
-    when its folder (``pessimistic`` beside ``out``; in the tables' regime also the
-    committed tables' penalty search, which holds the study's pairs too) holds them all
+    when its folder (``pessimistic`` beside ``out``; for CCR's parts in the tables' regime
+    also the committed tables' penalty search, which holds the study's pairs) holds them all
     with the same seeds and budgets: their value 0 is exactly the plain learner, while
     lambda 0 still observes the shared scores. ``None`` otherwise (then no check is made)."""
     if protocol.SEARCHED[settings.variant][0] != "lam":
@@ -148,7 +148,7 @@ def exact_plain_cells(settings: Settings, out: Path, cells: dict) -> dict | None
     record = settings_record(dataclasses.replace(
         settings, variant="pessimistic", values=protocol.SEARCHED["pessimistic"][1]))
     folders = [out.parent / "pessimistic"]
-    if settings.regime == protocol.DEFAULT_REGIME:
+    if settings.regime == protocol.DEFAULT_REGIME and settings.variant in protocol.PART_VARIANTS:
         folders.append(RESULTS / "search" / "pessimistic")
     for folder in folders:
         found = {pair: read_json(cell_path(folder, *pair)) for pair in cells}

@@ -164,20 +164,29 @@ def test_a_search_of_the_cost_limit_trains_the_unconstrained_learner_as_its_refe
     assert name == "cost_limit" and seeds == [100, 101] * 3
     assert params["cost_limit"] == [1.0, 1.0, 0.01, 0.01, 0.3, 0.3]
     for gain in ("kp", "ki", "kd"):
-        default = getattr(config.transform, gain)
+        default = getattr(config.resolved_transform, gain)
         assert params[gain] == [0.0, 0.0, *[default] * 4] and default > 0
     assert grid_params(config, "penalty", [0.0, 3.0]) == {"penalty": [0.0, 3.0]}
 
 
-def test_the_protocols_multiplier_waits_for_the_end_of_the_random_warm_up():
+def test_the_multiplier_waits_for_the_end_of_the_random_warm_up_by_default():
+    """A run that names no Lagrangian (the command line's, the protocol's) holds the
+    multiplier at 0 through its learner's random warm-up, in training iterations; an
+    on-policy learner has none."""
     settings = protocol.Settings(seeds=(100,))
     config = protocol.run_config(settings, "turbulence", "maddpg", "lagrangian")
-    assert config.transform.warmup_episodes == 25_600 // config.steps_per_iteration == 128
+    transform = config.resolved_transform
+    assert transform.warmup_episodes == 25_600 // config.steps_per_iteration == 128
+    assert transform.ki == 0.02  # the addition of 2026-12-03
     assert config.total_env_steps == protocol.BUDGETS["maddpg"]
     quick = protocol.run_config(dataclasses.replace(settings, quick=True, steps=400,
                                                     eval_every=200),
                                 "turbulence", "maddpg", "lagrangian")
-    assert quick.transform.warmup_episodes == 2  # 40 transitions, 20 per episode
+    assert quick.resolved_transform.warmup_episodes == 2  # 40 transitions, 20 per episode
+    assert TrainConfig(variant="lagrangian").resolved_transform == transform
+    assert TrainConfig(variant="lagrangian", algo="mappo").resolved_transform.warmup_episodes == 0
+    given = Lagrangian(cost_limit=0.1)
+    assert TrainConfig(variant="lagrangian", transform=given).resolved_transform is given
 
 
 @pytest.mark.slow  # two iterations compiled

@@ -126,8 +126,12 @@ class TrainConfig:
 
     @property
     def resolved_transform(self) -> Transform:
-        """The transform the run uses: ``transform``, or the variant's defaults."""
-        return transform_entry(self.variant).type() if self.transform is None else self.transform
+        """The transform the run uses: ``transform``, or the variant's defaults for this run
+        (its registry entry's ``defaults(config)``, else its type's defaults)."""
+        if self.transform is not None:
+            return self.transform
+        entry = transform_entry(self.variant)
+        return entry.type() if entry.defaults is None else entry.defaults(self)
 
     @property
     def resolved_learner(self) -> Any:

@@ -61,6 +61,14 @@ class Lagrangian(Plain):
     name = "lagrangian"
     reward_channels = True
 
+    @classmethod
+    def for_run(cls, config: Any) -> Lagrangian:
+        """The defaults for a run of ``config`` (a :class:`~ccrjax.training.TrainConfig`):
+        the multiplier held at 0 through the random warm-up, its learning start in training
+        iterations (none for an on-policy learner, which learns from its first rollout)."""
+        return cls(warmup_episodes=-(-config.learning_starts_transitions
+                                     // config.steps_per_iteration))
+
     def __post_init__(self) -> None:
         check_number("Lagrangian", "cost_limit", self.cost_limit, positive=False)
         if self.cost_limit > 1.0:
