@@ -59,6 +59,9 @@ from experiments.tables_grid import QUICK, Job, job_cells, run_grid, variant_cel
 
 PROG = "python experiments/constrained.py"
 VARIANT = "lagrangian"
+# Pessimistic and CCR at the budget with the rule's choices there, where they are not the
+# 6M tables' (the amendment's "reported beside"): experiments/tables.py --steps 2000000.
+AT_BUDGET_TABLES = RESULTS / "constrained" / "tables_at_budget"
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -115,6 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the folder of the ccr/ and pessimistic/ searches whose "
                         "evaluations at the budget the rule is applied to (default: "
                         "%(default)s)")
+    parser.add_argument("--at-budget-tables", type=Path, default=AT_BUDGET_TABLES,
+                        help="the tables (experiments/tables.py --steps at the budget) of the "
+                        "penalty and lambda the rule chose at the budget where they are not "
+                        "the 6M tables' (default: %(default)s)")
     parser.add_argument("--tables", type=Path, default=RESULTS / "tables_6m",
                         help="the tables whose plain, pessimistic and CCR cells are read at "
                         "the budget (default: %(default)s)")
@@ -171,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     lagrangian = {pair: cells[VARIANT] for pair, cells in found.items()}
     result, markdown, figures = report(lagrangian, whole, args.tables, args.searches,
                                        args.lagrangian_search, sources, out, ledger.invocations,
-                                       resamples=200 if settings.quick else 2000)
+                                       resamples=200 if settings.quick else 2000,
+                                       at_budget=args.at_budget_tables)
     write_atomic(out / "constrained.json", json.dumps(result, indent=1) + "\n")
     write_atomic(out / "constrained.md", markdown)
     print(markdown)

@@ -130,6 +130,31 @@ def pair_rows(tables: dict[tuple[str, str, str], dict], steps: int, cost_limit: 
     return rows
 
 
+def rule_value_rows(cells: dict[tuple[str, str, str], dict], rows: dict[tuple[str, str], dict],
+                    steps: int) -> dict[tuple[str, str], dict[str, Any]]:
+    """Per pair, the per-seed danger, success and training danger at ``steps`` of the
+    pessimistic and CCR cells of ``cells`` (keyed ``(scenario, algo, variant)``: the
+    values the rule chose at this budget where they are not the tables'), and the Welch
+    tests of the Lagrangian (its rows in ``rows``, :func:`pair_rows`) against each."""
+    found = {}
+    for scenario, algo in PAIRS:
+        lagrangian = rows[(scenario, algo)]["variants"]["lagrangian"]
+        variants, tests = {}, {}
+        for variant in ("pessimistic", "ccr"):
+            cell = cells.get((scenario, algo, variant))
+            if cell is None:
+                continue
+            values = table_cell_at(cell, steps)
+            variants[variant] = {"danger_frequency": values["danger_frequency"],
+                                 "success_rate": values["success_rate"],
+                                 "training_danger": training_danger(cell, values, steps)}
+            tests[variant] = {metric: welch(lagrangian[metric], variants[variant][metric])
+                              for metric in ("danger_frequency", "success_rate",
+                                             "training_danger")}
+        found[(scenario, algo)] = {"variants": variants, "welch": tests}
+    return found
+
+
 def summary_of(values: list[float], metric: str) -> dict[str, Any]:
     return {"per_seed": values,
             **mean_ci(values, bounds=METRIC_RANGES.get(metric, (0.0, 1.0)))}

@@ -19,6 +19,7 @@ from experiments.constrained_analysis import (
     aggregates,
     hypotheses,
     pair_rows,
+    rule_value_rows,
     selection_at,
 )
 from experiments.ledger import read_json
@@ -62,6 +63,31 @@ def selections(searches: Path, lagrangian_search: Path, steps: int) -> dict[str,
     return found
 
 
+def rule_value_cells(folder: Path, seeds: tuple[int, ...], steps: int,
+                     values: dict[str, float]) -> tuple[dict[tuple[str, str, str], dict],
+                                                        str | None]:
+    """The pessimistic and CCR table cells of ``folder`` trained with ``values`` (the rule's
+    choices at the budget, where they are not the tables') on ``seeds``, evaluated at
+    ``steps``; and, if any is missing, what makes them (``None`` when all are there)."""
+    cells, missing = {}, []
+    for variant, value in values.items():
+        parameter = PARAMETERS[variant]
+        for scenario, algo in PAIRS:
+            cell = read_json(folder / "cells" / f"{cell_stem(scenario, algo, variant)}.json")
+            if (not cell or tuple(cell["seeds"]) != tuple(seeds)
+                    or set(cell["params"].get(parameter, [])) != {value}
+                    or steps not in [int(x) for x in cell["history"]["env_steps"][0]]):
+                missing.append(f"{scenario}-{algo}-{variant}")
+                continue
+            cells[(scenario, algo, variant)] = cell
+    if not missing:
+        return cells, None
+    given = " ".join(f"--{'lam' if v == 'ccr' else 'penalty'} {x:g}" for v, x in values.items())
+    return cells, (f"{len(missing)} of {len(PAIRS) * len(values)} cells are not made yet in "
+                   f"{folder} (`python experiments/tables.py --steps {steps} {given} "
+                   f"--out {folder} --force`)")
+
+
 def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: float, out: Path,
                        quick: bool) -> list[Path]:
     """Per scenario, the multiplier's path, its input and the evaluated danger over
@@ -86,22 +112,40 @@ def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: floa
 
 def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
            searches: Path, lagrangian_search: Path, sources: dict[str, str], out: Path,
-           invocations: list[dict[str, Any]], resamples: int = 2000
-           ) -> tuple[dict, str, list[Path]]:
+           invocations: list[dict[str, Any]], resamples: int = 2000,
+           at_budget: Path | None = None) -> tuple[dict, str, list[Path]]:
     """The result, its markdown and the figures written into ``out`` (``resamples``: the
-    bootstrap's, for rliable's intervals)."""
+    bootstrap's, for rliable's intervals). Where the rule at the budget chooses another
+    penalty or lambda than the tables', the pessimistic and CCR cells of those values at the
+    budget (``at_budget``, the amendment's "reported beside") are read and compared too."""
     steps = settings.budget(PAIRS[0][1])
     cells = baseline_cells(tables, settings.seeds)
     cells.update({(s, a, "lagrangian"): cell for (s, a), cell in lagrangian.items()})
     rows = pair_rows(cells, steps, settings.cost_limit)
     used = {variant: cells[(*PAIRS[0], variant)]["params"] for variant in ("ccr", "pessimistic")}
+    chosen = selections(searches, lagrangian_search, steps)
+    differ = {v: float(chosen[v]["value"]) for v in ("pessimistic", "ccr")
+              if "value" in chosen[v]
+              and float(chosen[v]["value"]) not in used[v].get(PARAMETERS[v], [])}
+    at_rule = {"values": differ, "folder": None if at_budget is None else str(at_budget),
+               "missing": None, "pairs": {}}
+    if differ:
+        if at_budget is None:
+            at_rule["missing"] = "no folder of their cells was given"
+        else:
+            extra, at_rule["missing"] = rule_value_cells(at_budget, settings.seeds, steps,
+                                                         differ)
+            if at_rule["missing"] is None:
+                at_rule["pairs"] = {f"{s}-{a}": row for (s, a), row in
+                                    rule_value_rows(extra, rows, steps).items()}
     result = {
         "settings": {"steps": steps, "seeds": list(settings.seeds),
                      "cost_limit": settings.cost_limit, "quick": settings.quick},
         "sources": {**sources, "tables": str(tables), "searches": str(searches),
                     "lagrangian_search": str(lagrangian_search)},
         "invocations": invocations,
-        "selections_at_budget": selections(searches, lagrangian_search, steps),
+        "selections_at_budget": chosen,
+        "at_rule_values": at_rule,
         "tables_values": {v: {k: sorted(set(x)) for k, x in p.items()} for v, p in used.items()},
         "pairs": {f"{s}-{a}": row for (s, a), row in rows.items()},
         "aggregates": aggregates(rows, resamples),
@@ -120,6 +164,32 @@ def _cell(values: list[float]) -> str:
 def _mark(test: dict[str, Any]) -> str:
     return "" if not test["significant"] else (" (lower*)" if test["difference"] < 0
                                                else " (higher*)")
+
+
+def rule_value_lines(found: dict[str, Any] | None) -> list[str]:
+    """The section on pessimistic and CCR at the rule's choices at the budget."""
+    if not found or not found["values"]:
+        return []
+    values = ", ".join(f"{PARAMETERS[v]} {x:g}" for v, x in found["values"].items())
+    lines = ["", "## Pessimistic and CCR at the rule's choices at this budget", "",
+             f"The rule at this budget chose {values}, not the tables' values, so their cells "
+             "at this budget are reported beside (docs/protocol.md, amendment of "
+             "2026-12-02). `*`: the Lagrangian against that row, Welch p < 0.05."]
+    if found["missing"]:
+        return lines + ["", f"Not yet: {found['missing']}."]
+    lines += ["", "| pair | variant | danger | success | training danger |",
+              "|---|---|---|---|---|"]
+    for key, row in found["pairs"].items():
+        scenario, algo = key.split("-")
+        for variant, values_of in row["variants"].items():
+            marks = {m: _mark(row["welch"][variant][m]) for m in row["welch"][variant]}
+            lines.append(
+                f"| {SCENARIO_NAMES[scenario]}, {LEARNER_NAMES[algo]} | {NAMES[variant]} "
+                f"({PARAMETERS[variant]} {found['values'][variant]:g}) | "
+                f"{_cell(values_of['danger_frequency'])}{marks['danger_frequency']} | "
+                f"{_cell(values_of['success_rate'])}{marks['success_rate']} | "
+                f"{_cell(values_of['training_danger'])}{marks['training_danger']} |")
+    return lines
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -164,6 +234,7 @@ def markdown(result: dict[str, Any]) -> str:
                          f"{_cell(values['training_danger'])}"
                          f"{marks.get('training_danger', '')} | "
                          f"{_cell(values['last_interval_danger'])} |")
+    lines += rule_value_lines(result.get("at_rule_values"))
     lines += ["", "## Over the 9 pairs (rliable)", "",
               "| metric | " + " | ".join(NAMES[v] for v in (*BASELINES, "lagrangian"))
               + " | P(Lagrangian better than plain / pessimistic / CCR) | P(CCR better than "
@@ -217,6 +288,12 @@ def results_section(folder: str, result: dict[str, Any]) -> list[str]:
         lines.append(f"| {name} | " + " | ".join(
             f"{found_metric['iqm'][v]['iqm']:.1%}" for v in (*BASELINES, "lagrangian")) + " |")
     improvement = danger["probability_of_improvement"]
+    at_rule = result.get("at_rule_values") or {}
+    if at_rule.get("values"):
+        values = ", ".join(f"{PARAMETERS[v]} {x:g}" for v, x in at_rule["values"].items())
+        lines += ["", f"The rule at this budget chose {values}, not the tables' values: "
+                  + ("their cells at this budget are in the report." if not at_rule["missing"]
+                     else f"their cells at this budget are not made yet ({at_rule['missing']}).")]
     lines += ["", f"P(the Lagrangian is less dangerous than pessimistic) = "
               f"{improvement['lagrangian_over_pessimistic']['probability']:.2f}; P(CCR less "
               f"dangerous than the Lagrangian) = "

@@ -198,3 +198,46 @@ def test_the_results_report_says_what_the_constrained_tables_show(tmp_path):
     assert "## The constrained baseline (Lagrangian) at 400 steps" in text
     assert "cost_limit 0.05" in text and "hidden_obstacle-iddpg 2/3" in text
     assert "| danger | 30.0% | 2.0% | 28.0% | 5.0% |" in text
+
+
+def test_the_rules_other_choices_at_the_budget_are_reported_beside(tmp_path):
+    """Where the rule at the budget picks another penalty and lambda than the tables' (3
+    and 1 here), the report names the command that trains their cells at the budget, then
+    reads them and tests the Lagrangian against them."""
+    tables, searches, own = tmp_path / "tables", tmp_path / "searches", tmp_path / "own"
+    write_cells(tables, {f"{s}-{a}-{v}": table_cell(s, a, v) for s, a in PAIRS
+                         for v in ("plain", "pessimistic", "ccr")})
+    write_cells(searches / "pessimistic", {
+        f"{s}-{a}": search_cell(s, a, [0.0, 1.0, 3.0], {0.0: 0.3, 1.0: 0.05, 3.0: 0.01},
+                                {0.0: 0.9, 1.0: 0.88, 3.0: 0.5}) for s, a in PAIRS})
+    write_cells(searches / "ccr", {
+        f"{s}-{a}": search_cell(s, a, [0.0, 1.0, 3.0], {0.0: 0.3, 1.0: 0.3, 3.0: 0.2},
+                                {0.0: 0.9, 1.0: 0.9, 3.0: 0.9}) for s, a in PAIRS})
+    write_cells(own, {f"{s}-{a}": search_cell(s, a, [0.0, 0.05], {0.0: 0.3, 0.05: 0.05},
+                                               {0.0: 0.9, 0.05: 0.88}) for s, a in PAIRS})
+    lagrangian = {(s, a): table_cell(s, a, "lagrangian") for s, a in PAIRS}
+    settings = constrained.Settings(cost_limit=0.05, seeds=SEEDS, steps=BUDGET, eval_every=200)
+    out, beside = tmp_path / "out", tmp_path / "beside"
+    out.mkdir()
+    result, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
+                             resamples=20, at_budget=beside)
+    assert result["at_rule_values"]["values"] == {"pessimistic": 1.0, "ccr": 3.0}
+    assert ("Not yet: 18 of 18 cells are not made yet in " in text
+            and f"(`python experiments/tables.py --steps 400 --penalty 1 --lam 3 --out {beside} "
+                "--force`)" in text)
+    made = {}
+    for s, a in PAIRS:  # the pessimistic cells first at the tables' penalty: not these
+        made[f"{s}-{a}-pessimistic"] = table_cell(s, a, "pessimistic")
+        made[f"{s}-{a}-ccr"] = {**table_cell(s, a, "ccr"), "params": {"lam": [3.0] * 3}}
+    write_cells(beside, made)
+    _, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
+                        resamples=20, at_budget=beside)
+    assert "Not yet: 9 of 18 cells" in text
+    for s, a in PAIRS:
+        (beside / "cells" / f"{s}-{a}-pessimistic.json").write_text(json.dumps(
+            {**table_cell(s, a, "pessimistic"), "params": {"penalty": [1.0] * 3}}))
+    result, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
+                             resamples=20, at_budget=beside)
+    row = result["at_rule_values"]["pairs"]["hidden_obstacle-iddpg"]
+    assert row["welch"]["pessimistic"]["danger_frequency"]["difference"] == pytest.approx(0.03)
+    assert "| hidden obstacle, IDDPG | pessimistic (penalty 1) | 2.00%" in text
