@@ -39,7 +39,7 @@ class TrainConfig:
     ``transform`` hold their parameters (``None``: that learner's or variant's defaults,
     :attr:`resolved_learner` and :attr:`resolved_transform`). Sizes the paper leaves open are
     chosen here and documented in the README: 8 training environments per seed (IPPO and MAPPO
-    128: :attr:`num_envs`), episodes of
+    160: :attr:`num_envs`), episodes of
     25 steps (the MPE's), and the environment-step budget per seed (:attr:`budget`; every
     environment step of every training environment counts). Validated when built, without
     building an environment; nothing is rewritten.
@@ -57,7 +57,7 @@ class TrainConfig:
     learner: Any = None
     num_robots: int = 5  # team size
     episode_length: int = 25  # steps per episode
-    # training environments per seed; None: the learner's default (8; IPPO and MAPPO 128),
+    # training environments per seed; None: the learner's default (8; IPPO and MAPPO 160),
     # filled in when the configuration is built, so the field always holds a number.
     num_envs: int | None = None
     total_env_steps: int | None = None  # environment steps per seed; None: the learner's default
