@@ -62,12 +62,13 @@ def one_budget_for_all(cells: list[dict[str, Any]]) -> dict[str, Any]:
             "failing": failing}
 
 
-def on_policy_budget(cells: list[dict[str, Any]], cap: int) -> dict[str, Any]:
-    """The on-policy learners' budget (docs/protocol.md, amendment of 2026-12-02, "the
-    on-policy learners"): the largest of the checked ``cells``' proposed budgets, so that by
-    it every plain on-policy learner has levelled off on the budget seeds; if a cell
-    proposes none (its return still moving at the end), ``cap`` (the budgets run's
-    length), flagged (``passed`` false); ``moving`` names such cells."""
+def largest_proposed_budget(cells: list[dict[str, Any]], cap: int) -> dict[str, Any]:
+    """The largest of the checked ``cells``' proposed budgets (each the smallest candidate
+    from which on every candidate's check passes), so that by it every cell's plain learner
+    has levelled off on the budget seeds: the on-policy learners' budget (docs/protocol.md,
+    amendment of 2026-12-02) and a regime's (addition of 2026-12-03). If a cell proposes
+    none (its return still moving at the end), ``cap`` (the budgets run's length), flagged
+    (``passed`` false); ``moving`` names such cells."""
     moving = [f"{cell['scenario']}-{cell['algo']}" for cell in cells
               if cell["proposed_budget"] is None]
     if moving or not cells:
@@ -77,7 +78,7 @@ def on_policy_budget(cells: list[dict[str, Any]], cap: int) -> dict[str, Any]:
 
 
 def on_policy_lines(result: dict[str, Any]) -> list[str]:
-    """The on-policy learners' budget by :func:`on_policy_budget` once the six cells of the
+    """The on-policy learners' budget by :func:`largest_proposed_budget` once the six cells of the
     budget seeds (the paper's scenarios x IPPO and MAPPO) exist."""
     cells = {(cell["scenario"], cell["algo"]): cell for cell in result["cells"]
              if cell["algo"] in protocol.ON_POLICY_ALGOS and cell["scenario"] in PAPER_SCENARIOS}
@@ -87,7 +88,7 @@ def on_policy_lines(result: dict[str, Any]) -> list[str]:
     if len(cells) < wanted:
         return ["", f"The on-policy learners' budget (the largest proposed budget of their "
                 f"{wanted} cells): not yet, {len(cells)} of them are made."]
-    rule = on_policy_budget(list(cells.values()),
+    rule = largest_proposed_budget(list(cells.values()),
                             max(cell["budget"] for cell in cells.values()))
     if rule["passed"]:
         return ["", f"The on-policy learners' budget (the largest proposed budget of their "
@@ -145,20 +146,29 @@ def rule_lines(result: dict[str, Any]) -> list[str]:
     if regime == protocol.DEFAULT_REGIME:
         wanted = {(s, a) for s in PAPER_SCENARIOS for a in ALGOS}
         name = "One budget for all"
-    else:  # the study's budget in its regime (amendment of 2026-12-01)
+        how = "the smallest candidate at which every plain learner's check passes"
+    else:  # the study's budget in its regime (amendment of 2026-12-01, addition 2026-12-03)
         wanted = {(s, a) for s in protocol.STUDY_SCENARIOS for a in protocol.STUDY_ALGOS}
         name = f"The `{regime}` regime's budget"
+        how = ("the largest of the study pairs' proposed budgets, each the smallest candidate "
+               "from which on every check passes")
     lines.append("")
     if not wanted <= made:
-        lines.append(f"{name} (the smallest candidate at which every plain "
-                     f"learner's check passes): not yet, {len(wanted & made)} of the "
+        lines.append(f"{name} ({how}): not yet, {len(wanted & made)} of the "
                      f"{len(wanted)} scenario x learner cells are made.")
+        return lines
+    if regime != protocol.DEFAULT_REGIME:
+        rule = largest_proposed_budget(
+            [cell for cell in cells if (cell["scenario"], cell["algo"]) in wanted],
+            max(candidates))
+        lines.append(f"{name} ({how}): **{rule['budget']:,}** steps" + (
+            "." if rule["passed"] else f", flagged: the return was still moving at the end "
+            f"for {', '.join(rule['moving'])}."))
         return lines
     rule = one_budget_for_all([cell for cell in cells if (cell["scenario"], cell["algo"])
                                in wanted])
     if rule["passed"]:
-        lines.append(f"{name} (the smallest candidate at which every plain "
-                     f"learner's check passes): **{rule['budget']:,}** steps.")
+        lines.append(f"{name} ({how}): **{rule['budget']:,}** steps.")
     else:
         failing = rule["failing"][rule["budget"]]
         lines.append(f"{name}: no candidate passes for every plain learner, so "

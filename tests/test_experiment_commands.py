@@ -176,7 +176,7 @@ def test_the_on_policy_budget_is_the_largest_proposed_by_their_six_cells(budgets
     cells.append({"scenario": "hidden_obstacle", "algo": "maddpg", "budget": 3_000_000,
                   "proposed_budget": 3_000_000})  # not of the family: ignored
     result = {"cells": cells, "settings": {"seeds": [200, 201, 202]}}
-    assert budgets_report.on_policy_budget(cells[:6], 4_000_000) == {
+    assert budgets_report.largest_proposed_budget(cells[:6], 4_000_000) == {
         "budget": 2_250_000, "passed": True, "moving": []}
     assert "their 6 cells): **2,250,000** steps." in "\n".join(
         budgets_report.on_policy_lines(result))

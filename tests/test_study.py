@@ -105,6 +105,7 @@ def test_the_value_is_the_regimes_search_choice_over_the_studys_pairs(tmp_path, 
                               tmp_path / "lagrangian") == 0.02
     column = tmp_path / "column" / "ccr"
     search_cells(column, "column", "ccr", [0.3, 0.2, 0.1, 0.05, 0.2, 0.3, 0.3])
+    monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {})  # before its budgets run
     with pytest.raises(cli.UsageError, match="provisional .*budget of maddpg is not chosen"):
         study.chosen_value("ccr", "column", ("maddpg",), column)
     monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {"maddpg": 3_000_000})

@@ -75,27 +75,35 @@ def test_the_column_budgets_run_checks_the_regimes_candidates():
     assert quick.config("turbulence", "maddpg").episode_length == 30  # a column needs 22
 
 
-def test_a_regimes_budget_is_the_smallest_candidate_where_every_study_pair_levels_off():
-    """Made-up checks: in `column` the rule runs over the study's pairs alone (a cell of
-    another pair, here MADDPG in the wind, does not move it)."""
+def test_a_regimes_budget_is_the_largest_of_the_study_pairs_proposals():
+    """Made-up checks (addition of 2026-12-03): in `column` the budget is the largest of the
+    study pairs' proposed budgets (each the smallest candidate from which on every check
+    passes), so a check passed early by a return still rising (the obstacle's at 1.2M, which
+    fails at 2.4M) does not choose it; another pair's cell (MADDPG in the wind) does not
+    move it; a pair still moving at the end gives 3M, flagged."""
     def cell(scenario: str, passes: dict[int, bool]) -> dict:
-        return {"scenario": scenario, "algo": "maddpg", "checks": [
-            {"budget": b, "plateaued": p, "last": 1.0, "previous": 0.5}
-            for b, p in passes.items()]}
+        checks = [{"budget": b, "plateaued": p, "last": 1.0, "previous": 0.5}
+                  for b, p in passes.items()]
+        proposed = next((c["budget"] for i, c in enumerate(checks)
+                         if all(d["plateaued"] for d in checks[i:])), None)
+        return {"scenario": scenario, "algo": "maddpg", "checks": checks,
+                "proposed_budget": proposed}
 
     settings = {"candidate_budgets": [1_200_000, 2_400_000, 3_000_000], "regime": "column"}
-    cells = [cell("hidden_obstacle", {1_200_000: True, 2_400_000: True, 3_000_000: True}),
-             cell("turbulence", {1_200_000: False, 2_400_000: True, 3_000_000: True}),
+    cells = [cell("hidden_obstacle", {1_200_000: True, 2_400_000: False, 3_000_000: True}),
+             cell("turbulence", {1_200_000: True, 2_400_000: True, 3_000_000: True}),
              cell("strong_wind", {1_200_000: False, 2_400_000: False, 3_000_000: False})]
     text = "\n".join(budgets_report.rule_lines({"cells": cells, "settings": settings}))
-    assert "The `column` regime's budget (the smallest" in text
-    assert "**2,400,000** steps." in text
+    assert "The `column` regime's budget (the largest of the study pairs' proposed" in text
+    assert "**3,000,000** steps." in text
+    cells[0] = cell("hidden_obstacle", {1_200_000: False, 2_400_000: True, 3_000_000: True})
+    assert "**2,400,000** steps." in "\n".join(
+        budgets_report.rule_lines({"cells": cells, "settings": settings}))
     assert "not yet, 1 of the 2" in "\n".join(
         budgets_report.rule_lines({"cells": cells[:1], "settings": settings}))
-    for check in cells[1]["checks"]:
-        check["plateaued"] = False
-    assert ("no candidate passes for every plain learner, so **3,000,000** steps, flagged: "
-            "at it the check fails for turbulence-maddpg") in "\n".join(
+    cells[1] = cell("turbulence", {1_200_000: True, 2_400_000: True, 3_000_000: False})
+    assert ("**3,000,000** steps, flagged: the return was still moving at the end for "
+            "turbulence-maddpg") in "\n".join(
         budgets_report.rule_lines({"cells": cells, "settings": settings}))
 
 
@@ -121,6 +129,7 @@ def test_a_search_is_the_protocols_over_the_tables_or_the_studys_pairs(monkeypat
     assert why == "1 of 2 pairs not summarised (hidden_obstacle-maddpg)"
 
     column = {**STUDY, "regime": "column", "eval_every": 120_000}
+    monkeypatch.setitem(protocol.REGIME_BUDGETS, "column", {})  # before its budgets run
     why = search.not_the_protocols(search_settings(**column))
     assert why == ("the column regime's budget of maddpg is not chosen yet "
                    "(experiments/budgets.py --regime column)")
