@@ -204,6 +204,19 @@ def test_the_recorded_commit_is_dirty_for_changed_code_but_not_for_changed_resul
     git("add", ".")
     git("commit", "-qm", "documentation")
     assert tree_commit(tmp_path) != head and tree_code_commit(tmp_path) == head
+    # Tests and a module that only reports on finished cells do not train either.
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text("def test(): pass\n")
+    (tmp_path / "experiments" / "study_report.py").write_text("y = 1\n")
+    git("add", ".")
+    git("commit", "-qm", "tests and a report")
+    assert tree_code_commit(tmp_path) == head
+    (tmp_path / "experiments" / "study.py").write_text("z = 1\n")
+    git("add", ".")
+    git("commit", "-qm", "an experiment that trains")
+    trains = tree_commit(tmp_path)
+    assert tree_code_commit(tmp_path) == trains != head
+    head = trains
     code.write_text("x = 3\n")
     assert tree_code_commit(tmp_path) == head + "+dirty"
     git("commit", "-qam", "code")

@@ -146,9 +146,14 @@ def tree_commit(root: Path) -> str | None:
     return commit + ("+dirty" if dirty else "")
 
 
-# What is not code: a commit that changes only these (results, documentation) leaves the
-# code that trains as it was (code_commit).
-NOT_CODE_PATHS = (*RESULT_PATHS, "docs", "*.md")
+# What is not code that trains: a commit that changes only these (results, documentation,
+# the tests, tools and benchmarks, and the experiments' modules that only read finished
+# cells: reports, analyses, figures) leaves the code that trains as it was (code_commit).
+NOT_CODE_PATHS = (
+    *RESULT_PATHS, "docs", "*.md", "tests", "tools", "benchmarks", ".ci",
+    "experiments/*_report.py", "experiments/*_analysis.py", "experiments/*_figures.py",
+    "experiments/results_*.py",
+)
 
 
 @functools.cache
