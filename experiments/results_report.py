@@ -46,7 +46,8 @@ TABLES = (("tables", "3M"), ("tables_6m", "6M"))  # folder, budget label
 SEARCHES = (("search", "3M"), ("search_6m", "6M"))
 CONSTRAINED = "constrained"  # experiments/constrained.py's folder
 BUDGETS = (("budgets", "the budget seeds 200-202"), ("longer_budget", "the tables' seeds"),
-           ("budgets_on_policy", "the budget seeds 200-202 (the on-policy learners)"))
+           ("budgets_on_policy", "the budget seeds 200-202 (the on-policy learners)"),
+           ("study/budgets_column", "the budget seeds 200-202 (the study's column regime)"))
 
 
 def report(results: Path = RESULTS) -> str:

@@ -242,8 +242,21 @@ def budgets_section(budgets: dict[str, dict[str, Any]]) -> list[str]:
                  for c in result["cells"]]
         lines.append(f"* [`{folder}/`]({folder}/budgets.md), on {what}, candidates up to "
                      f"{budgets_text(result['budgets'])}: " + "; ".join(cells) + "."
-                     + "".join(f" {line}" for line in on_policy_lines(result) if line))
+                     + "".join(f" {line}" for line in on_policy_lines(result) if line)
+                 + regime_budget_text(result))
     return lines + [""]
+
+
+def regime_budget_text(result: dict[str, Any]) -> str:
+    """The budget a budgets run in a study regime sets for it (the largest proposed budget
+    of the study's pairs, ``docs/protocol.md``), or nothing for today's regime."""
+    regime = result["settings"].get("regime", "today")
+    if regime == "today":
+        return ""
+    chosen = "; ".join(f"{LEARNER_NAMES[algo]} **{steps:,}** steps"
+                       for algo, steps in result["budgets"].items())
+    return (f" The {regime} regime's budget (the largest proposed budget of the study's "
+            f"pairs): {chosen}.")
 
 
 def regimes_section(result: dict[str, Any]) -> list[str]:

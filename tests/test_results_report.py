@@ -35,7 +35,7 @@ def copy_results(tmp_path: Path) -> Path:
     """The result files the report reads (not the cells or figures)."""
     out = tmp_path / "results"
     for pattern in ("tables*/tables.json", "search*/*/search.json", "*budget*/budgets.json",
-                    "regimes/regimes.json"):
+                    "study/budgets*/budgets.json", "regimes/regimes.json"):
         for path in RESULTS.glob(pattern):
             target = out / path.relative_to(RESULTS)
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -58,6 +58,16 @@ def test_a_changed_result_changes_the_report(report, tmp_path):
     assert "| turbulence, MADDPG | 39.8 / 2.0 / 12.3" in text
     assert "| CCR's danger below pessimistic's | 4 of 9" in text
     assert "does not reproduce here" not in text  # the verdict follows the numbers
+
+
+def test_a_study_regimes_budget_is_reported(report, tmp_path):
+    out = copy_results(tmp_path)
+    path = out / "study" / "budgets_column" / "budgets.json"
+    result = json.loads(path.read_text())
+    result["budgets"] = {"maddpg": 2_400_000}
+    path.write_text(json.dumps(result))
+    assert ("The column regime's budget (the largest proposed budget of the study's pairs): "
+            "MADDPG **2,400,000** steps.") in report.report(out)
 
 
 def test_missing_folders_are_left_out(report, tmp_path):
