@@ -212,6 +212,7 @@ def test_sweep_command_at_a_tiny_size(tmp_path, subprocess_env):
     assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # the demo's whole pipeline in a process that starts JAX (40 s)
 def test_demo_command_at_a_tiny_size(tmp_path, subprocess_env):
     from PIL import Image
 

@@ -18,6 +18,7 @@ from ccrjax.run.spec import RunSpec
 from ccrjax.training import TrainConfig, make_train
 
 
+@pytest.mark.slow  # trains a CCR team and compiles its episodes (50 s)
 def test_a_ccr_team_runs_its_episodes_with_its_own_model(tmp_path):
     """Export a CCR team (two seeds, the second one's model statistics made unlike the
     first's) and load it back from the export and config alone: its episode and metrics

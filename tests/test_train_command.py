@@ -237,6 +237,7 @@ def test_the_command_trains_what_the_library_trains(finished_run):
 
 
 # ---------------------------------------------------------------------------- resuming
+@pytest.mark.slow  # three processes; Ctrl-C's resume stays in make test (50 s)
 def test_a_run_killed_with_sigkill_resumes_to_exactly_the_same_result(
     finished_run, tmp_path, subprocess_env, capsys
 ):
@@ -355,6 +356,7 @@ def resume_to_the_end(out: Path, capsys) -> str:
     return err
 
 
+@pytest.mark.slow  # two processes that compile a run (40 s)
 def test_sigterm_during_compilation_exits_130_and_the_same_command_starts_over(
     finished_run, tmp_path, subprocess_env, capsys
 ):
