@@ -10,7 +10,8 @@ variant's cells, the tables' seeds 0-9 on the 9 scenario x learner pairs at
 (``--lagrangian-search``, default ``experiments/results/search_lagrangian``; ``--cost-limit``
 overrides). Once all 9 cells exist it reads the other variants at the same budget from the
 6M tables' cells (``--tables``) and the three searches' choices there (``--searches`` for
-lambda's and the penalty's, read at the budget from the 6M searches), and writes
+lambda's and the penalty's, read at the budget from the 6M searches; where those choose
+other values than the 6M tables', their cells from ``--at-budget-tables``), and writes
 ``constrained.json``, ``constrained.md`` and ``multiplier_<scenario>.png``
 (:mod:`experiments.constrained_analysis`, :mod:`experiments.constrained_report`); into
 ``experiments/results/constrained`` it also regenerates the results report.
@@ -51,6 +52,7 @@ from experiments.ledger import (
     open_experiment,
     read_json,
     refuse_untrained,
+    repo_relative,
     settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
@@ -60,8 +62,10 @@ from experiments.tables_grid import QUICK, Job, job_cells, run_grid, variant_cel
 PROG = "python experiments/constrained.py"
 VARIANT = "lagrangian"
 # Pessimistic and CCR at the budget with the rule's choices there, where they are not the
-# 6M tables' (the amendment's "reported beside"): experiments/tables.py --steps 2000000.
+# 6M tables' (the amendment's "reported beside"): experiments/tables.py --steps 2000000,
+# or the 3M tables where their value is the rule's (a run's first 2M steps are the 2M run).
 AT_BUDGET_TABLES = RESULTS / "constrained" / "tables_at_budget"
+AT_BUDGET_SOURCES = (AT_BUDGET_TABLES, RESULTS / "tables")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -104,7 +108,7 @@ def chosen_limit(given: float | None, quick: bool, search: Path) -> tuple[float,
         raise cli.UsageError(f"the Lagrangian search at {path} is not the protocol's choice "
                              f"({why}): finish it on all 9 pairs at {budgets}, or give "
                              "--cost-limit")
-    return float(chosen["value"]), f"selected by the search in {path.parent}"
+    return float(chosen["value"]), f"selected by the search in {repo_relative(path.parent)}"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -118,10 +122,14 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the folder of the ccr/ and pessimistic/ searches whose "
                         "evaluations at the budget the rule is applied to (default: "
                         "%(default)s)")
-    parser.add_argument("--at-budget-tables", type=Path, default=AT_BUDGET_TABLES,
-                        help="the tables (experiments/tables.py --steps at the budget) of the "
-                        "penalty and lambda the rule chose at the budget where they are not "
-                        "the 6M tables' (default: %(default)s)")
+    parser.add_argument("--at-budget-tables", type=Path, nargs="+",
+                        default=list(AT_BUDGET_SOURCES),
+                        help="where the pessimistic and CCR cells of the penalty and lambda "
+                        "the rule chose at the budget are read, where those are not the 6M "
+                        "tables': each variant's from the first of these folders that holds "
+                        "them, tables made at the budget (experiments/tables.py --steps) or "
+                        "longer tables of the same seeds, read at the budget (default: "
+                        f"{' '.join(str(f) for f in AT_BUDGET_SOURCES)})")
     parser.add_argument("--tables", type=Path, default=RESULTS / "tables_6m",
                         help="the tables whose plain, pessimistic and CCR cells are read at "
                         "the budget (default: %(default)s)")

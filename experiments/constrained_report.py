@@ -5,6 +5,7 @@ committed cells of the other variants and searches (:mod:`experiments.constraine
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from experiments.constrained_analysis import (
     rule_value_rows,
     selection_at,
 )
-from experiments.ledger import read_json
+from experiments.ledger import read_json, repo_relative
 from experiments.tables_grid import LEARNER_NAMES, SCENARIO_NAMES, cell_stem
 
 NAMES = {"plain": "plain", "pessimistic": "pessimistic", "ccr": "CCR",
@@ -63,29 +64,45 @@ def selections(searches: Path, lagrangian_search: Path, steps: int) -> dict[str,
     return found
 
 
-def rule_value_cells(folder: Path, seeds: tuple[int, ...], steps: int,
+def rule_value_cells(folders: Sequence[Path], seeds: tuple[int, ...], steps: int,
                      values: dict[str, float]) -> tuple[dict[tuple[str, str, str], dict],
-                                                        str | None]:
-    """The pessimistic and CCR table cells of ``folder`` trained with ``values`` (the rule's
-    choices at the budget, where they are not the tables') on ``seeds``, evaluated at
-    ``steps``; and, if any is missing, what makes them (``None`` when all are there)."""
-    cells, missing = {}, []
-    for variant, value in values.items():
-        parameter = PARAMETERS[variant]
+                                                        dict[str, str], str | None]:
+    """The pessimistic and CCR table cells trained with ``values`` (the rule's choices at
+    the budget, where they are not the tables') on ``seeds`` and evaluated at ``steps``,
+    each variant's from the first of ``folders`` that holds all 9 of its cells (tables made
+    at the budget, or tables of a longer budget on the same seeds: a run's first ``steps``
+    are the run of that budget, ``docs/protocol.md``); the folder each variant's cells came
+    from; and, if some are missing, what makes them (``None`` when all are there)."""
+
+    def found_in(folder: Path, variant: str) -> dict[tuple[str, str, str], dict] | None:
+        parameter, cells = PARAMETERS[variant], {}
         for scenario, algo in PAIRS:
             cell = read_json(folder / "cells" / f"{cell_stem(scenario, algo, variant)}.json")
             if (not cell or tuple(cell["seeds"]) != tuple(seeds)
-                    or set(cell["params"].get(parameter, [])) != {value}
+                    or set(cell["params"].get(parameter, [])) != {values[variant]}
                     or steps not in [int(x) for x in cell["history"]["env_steps"][0]]):
-                missing.append(f"{scenario}-{algo}-{variant}")
-                continue
+                return None
             cells[(scenario, algo, variant)] = cell
+        return cells
+
+    cells, sources, missing = {}, {}, []
+    for variant in values:
+        for folder in folders:
+            if (found := found_in(folder, variant)) is not None:
+                cells.update(found)
+                sources[variant] = repo_relative(folder)
+                break
+        else:
+            missing.append(variant)
     if not missing:
-        return cells, None
+        return cells, sources, None
     given = " ".join(f"--{'lam' if v == 'ccr' else 'penalty'} {x:g}" for v, x in values.items())
-    return cells, (f"{len(missing)} of {len(PAIRS) * len(values)} cells are not made yet in "
-                   f"{folder} (`python experiments/tables.py --steps {steps} {given} "
-                   f"--out {folder} --force`)")
+    target = folders[0]
+    return cells, sources, (
+        f"the {' and '.join(NAMES[v] for v in missing)} cells of the rule's values are in none "
+        f"of {', '.join(repo_relative(f) for f in folders)} (`python experiments/tables.py "
+        f"--steps {steps} {given} --variants {' '.join(missing)} --out "
+        f"{repo_relative(target)} --force`)")
 
 
 def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: float, out: Path,
@@ -113,11 +130,12 @@ def multiplier_figures(lagrangian: dict[tuple[str, str], dict], cost_limit: floa
 def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
            searches: Path, lagrangian_search: Path, sources: dict[str, str], out: Path,
            invocations: list[dict[str, Any]], resamples: int = 2000,
-           at_budget: Path | None = None) -> tuple[dict, str, list[Path]]:
+           at_budget: Sequence[Path] = ()) -> tuple[dict, str, list[Path]]:
     """The result, its markdown and the figures written into ``out`` (``resamples``: the
     bootstrap's, for rliable's intervals). Where the rule at the budget chooses another
     penalty or lambda than the tables', the pessimistic and CCR cells of those values at the
-    budget (``at_budget``, the amendment's "reported beside") are read and compared too."""
+    budget (from the first of the ``at_budget`` folders holding them: the amendment's
+    "reported beside", :func:`rule_value_cells`) are read and compared too."""
     steps = settings.budget(PAIRS[0][1])
     cells = baseline_cells(tables, settings.seeds)
     cells.update({(s, a, "lagrangian"): cell for (s, a), cell in lagrangian.items()})
@@ -127,22 +145,23 @@ def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
     differ = {v: float(chosen[v]["value"]) for v in ("pessimistic", "ccr")
               if "value" in chosen[v]
               and float(chosen[v]["value"]) not in used[v].get(PARAMETERS[v], [])}
-    at_rule = {"values": differ, "folder": None if at_budget is None else str(at_budget),
+    at_rule = {"values": differ, "folders": [repo_relative(f) for f in at_budget], "sources": {},
                "missing": None, "pairs": {}}
     if differ:
-        if at_budget is None:
+        if not at_budget:
             at_rule["missing"] = "no folder of their cells was given"
         else:
-            extra, at_rule["missing"] = rule_value_cells(at_budget, settings.seeds, steps,
-                                                         differ)
+            extra, at_rule["sources"], at_rule["missing"] = rule_value_cells(
+                at_budget, settings.seeds, steps, differ)
             if at_rule["missing"] is None:
                 at_rule["pairs"] = {f"{s}-{a}": row for (s, a), row in
                                     rule_value_rows(extra, rows, steps).items()}
     result = {
         "settings": {"steps": steps, "seeds": list(settings.seeds),
                      "cost_limit": settings.cost_limit, "quick": settings.quick},
-        "sources": {**sources, "tables": str(tables), "searches": str(searches),
-                    "lagrangian_search": str(lagrangian_search)},
+        "sources": {**sources, "tables": repo_relative(tables),
+                    "searches": repo_relative(searches),
+                    "lagrangian_search": repo_relative(lagrangian_search)},
         "invocations": invocations,
         "selections_at_budget": chosen,
         "at_rule_values": at_rule,
@@ -177,6 +196,9 @@ def rule_value_lines(found: dict[str, Any] | None) -> list[str]:
              "2026-12-02). `*`: the Lagrangian against that row, Welch p < 0.05."]
     if found["missing"]:
         return lines + ["", f"Not yet: {found['missing']}."]
+    lines += ["", "Read from: " + "; ".join(
+        f"{NAMES[v]}'s cells, `{folder}`" for v, folder in found["sources"].items())
+        + " (a longer run's evaluation at this budget is the run of this budget)."]
     lines += ["", "| pair | variant | danger | success | training danger |",
               "|---|---|---|---|---|"]
     for key, row in found["pairs"].items():

@@ -38,6 +38,16 @@ from experiments import protocol
 
 # The repository's committed results: written only when a command is given --force.
 RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def repo_relative(folder: Path | str) -> str:
+    """``folder`` as a record names it: relative to the repository where it is inside (a
+    committed result must not name the machine's paths)."""
+    root = RESULTS.parent.parent
+    resolved = Path(folder).resolve()
+    return str(resolved.relative_to(root)) if resolved.is_relative_to(root) else str(folder)
+
+
 INVOCATIONS = "invocations.json"
 PARTIAL = "partial"  # <out>/partial/<cell>/: the program in training's checkpoint
 CHECKPOINT_MINUTES = 15.0

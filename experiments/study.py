@@ -59,6 +59,7 @@ from experiments.ledger import (
     open_experiment,
     read_json,
     refuse_untrained,
+    repo_relative,
     settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
@@ -146,13 +147,6 @@ def chosen(variant: str, regime: str, algos: tuple[str, ...], folder: Path
                              f"({chosen['provisional_because']}): finish {command}, or give "
                              f"--value {variant} VALUE")
     return chosen
-
-
-def shown(folder: Path) -> str:
-    """``folder`` as a record names it: relative to the repository where it is inside."""
-    root = RESULTS.parent.parent
-    resolved = Path(folder).resolve()
-    return str(resolved.relative_to(root)) if resolved.is_relative_to(root) else str(folder)
 
 
 def search_folder(variant: str, regime: str, searches: Path) -> Path:
@@ -243,7 +237,7 @@ def settings_from(args: argparse.Namespace) -> tuple[Settings, dict[str, str]]:
             folder = search_folder(variant, args.regime, searches)
             choice = chosen(variant, args.regime, tuple(args.algos), folder)
             values[variant] = float(choice["value"])
-            sources[variant] = f"the search in {shown(folder)}" + (
+            sources[variant] = f"the search in {repo_relative(folder)}" + (
                 " (its fallback: no value met the rule)" if choice["fallback"] else "")
     fields: dict[str, Any] = {
         "values": values, "regime": args.regime, "seeds": tuple(range(args.seeds)),

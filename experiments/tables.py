@@ -21,7 +21,7 @@ regenerates the results report, ``experiments/results/README.md``
 (:mod:`experiments.results_report`).
 
 Cost: 270 runs of 3,000,000 environment steps (30 per scenario and learner: 3 variants x 10
-seeds), about 28 to 33 hours of a 2-core CPU and half an hour of one H100
+seeds), about 34 hours of a 2-core CPU and half an hour of one H100
 (``docs/experiments.md``). Cells are resumable across invocations; the program in training
 is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/`` and resumed from
 there (:mod:`ccrjax.run.grid_checkpoint`).
@@ -72,6 +72,7 @@ from experiments.results_report import write_report
 from experiments.tables_figures import draw_figures
 from experiments.tables_grid import (
     QUICK,
+    VARIANTS,
     Settings,
     cell_stem,
     grid_cells,
@@ -124,6 +125,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="train only these learners' programs, of one family (default: "
                         "the paper's three; ippo mappo: the on-policy family's tables, with "
                         "its own searches, experiments/results/search_on_policy)")
+    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS),
+                        help="train only the programs of these variants (default: all three; "
+                        "plain trains beside pessimistic, in one program; pessimistic "
+                        "without plain trains alone)")
     parser.add_argument("--quick", action="store_true",
                         help=protocol.quick_help())
     add_out_options(parser, "tables", default_text="runs/tables")
@@ -179,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     distributed.initialize(PROG, args)
     out = args.out or Path("runs/tables")
+    variants = tuple(dict.fromkeys(args.variants))
     sources: dict[str, str] = {}
 
     def settings_of() -> Settings:
@@ -202,7 +208,8 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError(str(error)) from None
 
         def validated(settings: Settings) -> Settings:
-            for job in jobs_of(settings):  # every configuration validated before compiling
+            # Every configuration validated before compiling.
+            for job in jobs_of(settings, variants):
                 for variant in job.variants:
                     settings.config(job.scenario, job.algo, variant)
             return settings
@@ -221,14 +228,15 @@ def main(argv: list[str] | None = None) -> int:
             raise cli.UsageError("; and ".join(problems))
         settings = validated(dataclasses.replace(settings, **chosen))
         if args.no_train:
-            cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings)
+            cells = [(job.scenario, job.algo, variant) for job in jobs_of(settings, variants)
                      for variant in job.variants]
             refuse_untrained({cell_stem(*cell): variant_cell_path(out, *cell) for cell in cells},
                              settings_record(settings), out)
         return settings
 
     settings, ledger = open_experiment(PROG, argv, out, args.force, settings_of)
-    trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes))
+    trained = run_grid(settings, out, ledger, Partial(out, args.checkpoint_minutes),
+                       jobs_of(settings, variants))
     ledger.record(trained, finished=True)
     if not distributed.is_primary():  # process 0 writes the tables
         return 0

@@ -77,7 +77,7 @@ class Settings(protocol.Settings):
 
     def run_params(self, variant: str) -> dict[str, float]:
         """The run parameters a program of ``variant`` alone trains every seed with."""
-        return {"ccr": {"lam": self.lam}}[variant]
+        return {"ccr": {"lam": self.lam}, "pessimistic": {"penalty": self.penalty}}[variant]
 
 
 QUICK = dict(steps=protocol.QUICK_STEPS, seeds=(0, 1), eval_every=protocol.QUICK_EVAL_EVERY,
@@ -181,10 +181,21 @@ def grid_jobs(algos: tuple[str, ...] = ALGOS) -> list[Job]:
             for variants in (("plain", "pessimistic"), ("ccr",))]
 
 
-def jobs_of(settings: Settings) -> list[Job]:
-    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``."""
-    return [job for job in grid_jobs(protocol.family(settings.algos))
-            if job.scenario in settings.scenarios and job.algo in settings.algos]
+def jobs_of(settings: Settings, variants: tuple[str, ...] = VARIANTS) -> list[Job]:
+    """The programs this invocation trains: ``settings.scenarios`` x ``settings.algos``,
+    those holding ``variants``. Plain trains in one program with pessimistic (penalty 0
+    beside the penalty); pessimistic without plain is a program of its runs alone, of the
+    same configurations and seeds."""
+    jobs = []
+    for job in grid_jobs(protocol.family(settings.algos)):
+        if job.scenario not in settings.scenarios or job.algo not in settings.algos:
+            continue
+        if "plain" in job.variants and "plain" not in variants:
+            if "pessimistic" in variants:
+                jobs.append(Job(job.scenario, job.algo, ("pessimistic",)))
+        elif set(job.variants) & set(variants):
+            jobs.append(job)
+    return jobs
 
 
 def job_cells(out: Path, job: Job, settings: Settings) -> dict[str, dict] | None:

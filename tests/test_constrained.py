@@ -203,7 +203,8 @@ def test_the_results_report_says_what_the_constrained_tables_show(tmp_path):
 def test_the_rules_other_choices_at_the_budget_are_reported_beside(tmp_path):
     """Where the rule at the budget picks another penalty and lambda than the tables' (3
     and 1 here), the report names the command that trains their cells at the budget, then
-    reads them and tests the Lagrangian against them."""
+    reads each variant's from the first folder holding all of them (the tables at the
+    budget, else longer tables read at the budget) and tests the Lagrangian against them."""
     tables, searches, own = tmp_path / "tables", tmp_path / "searches", tmp_path / "own"
     write_cells(tables, {f"{s}-{a}-{v}": table_cell(s, a, v) for s, a in PAIRS
                          for v in ("plain", "pessimistic", "ccr")})
@@ -217,27 +218,40 @@ def test_the_rules_other_choices_at_the_budget_are_reported_beside(tmp_path):
                                                {0.0: 0.9, 0.05: 0.88}) for s, a in PAIRS})
     lagrangian = {(s, a): table_cell(s, a, "lagrangian") for s, a in PAIRS}
     settings = constrained.Settings(cost_limit=0.05, seeds=SEEDS, steps=BUDGET, eval_every=200)
-    out, beside = tmp_path / "out", tmp_path / "beside"
+    out, beside, longer = tmp_path / "out", tmp_path / "beside", tmp_path / "longer"
     out.mkdir()
-    result, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
-                             resamples=20, at_budget=beside)
+
+    def reported(*folders: Path) -> tuple[dict, str]:
+        result, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
+                                 resamples=20, at_budget=folders)
+        return result, text
+
+    result, text = reported(beside, longer)
     assert result["at_rule_values"]["values"] == {"pessimistic": 1.0, "ccr": 3.0}
-    assert ("Not yet: 18 of 18 cells are not made yet in " in text
-            and f"(`python experiments/tables.py --steps 400 --penalty 1 --lam 3 --out {beside} "
-                "--force`)" in text)
-    made = {}
-    for s, a in PAIRS:  # the pessimistic cells first at the tables' penalty: not these
-        made[f"{s}-{a}-pessimistic"] = table_cell(s, a, "pessimistic")
-        made[f"{s}-{a}-ccr"] = {**table_cell(s, a, "ccr"), "params": {"lam": [3.0] * 3}}
-    write_cells(beside, made)
-    _, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
-                        resamples=20, at_budget=beside)
-    assert "Not yet: 9 of 18 cells" in text
-    for s, a in PAIRS:
+    assert (f"Not yet: the pessimistic and CCR cells of the rule's values are in none of "
+            f"{beside}, {longer} (`python experiments/tables.py --steps 400 --penalty 1 --lam 3 "
+            f"--variants pessimistic ccr --out {beside} --force`)") in text
+    # Longer tables of lambda 3 on the same seeds, evaluated at the budget: CCR's are read.
+    write_cells(longer, {f"{s}-{a}-ccr": {**table_cell(s, a, "ccr"), "params": {"lam": [3.0] * 3}}
+                         for s, a in PAIRS})
+    # Pessimistic cells at the tables' penalty: not these.
+    write_cells(beside, {f"{s}-{a}-pessimistic": table_cell(s, a, "pessimistic")
+                         for s, a in PAIRS})
+    result, text = reported(beside, longer)
+    assert "Not yet: the pessimistic cells of the rule's values are in none of" in text
+    assert "--variants pessimistic --out" in text
+    assert result["at_rule_values"]["sources"] == {"ccr": str(longer)}
+    for s, a in PAIRS[:-1]:  # one pair short of the 9: not read from there
         (beside / "cells" / f"{s}-{a}-pessimistic.json").write_text(json.dumps(
             {**table_cell(s, a, "pessimistic"), "params": {"penalty": [1.0] * 3}}))
-    result, text, _ = report(lagrangian, settings, tables, searches, own, {}, out, [],
-                             resamples=20, at_budget=beside)
+    assert "Not yet: the pessimistic cells" in reported(beside, longer)[1]
+    s, a = PAIRS[-1]
+    (beside / "cells" / f"{s}-{a}-pessimistic.json").write_text(json.dumps(
+        {**table_cell(s, a, "pessimistic"), "params": {"penalty": [1.0] * 3}}))
+    result, text = reported(beside, longer)
+    assert result["at_rule_values"]["sources"] == {"pessimistic": str(beside),
+                                                   "ccr": str(longer)}
+    assert f"Read from: pessimistic's cells, `{beside}`; CCR's cells, `{longer}`" in text
     row = result["at_rule_values"]["pairs"]["hidden_obstacle-iddpg"]
     assert row["welch"]["pessimistic"]["danger_frequency"]["difference"] == pytest.approx(0.03)
     assert "| hidden obstacle, IDDPG | pessimistic (penalty 1) | 2.00%" in text

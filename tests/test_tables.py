@@ -295,3 +295,20 @@ def test_a_narrower_invocation_trains_its_programs_and_waits_for_the_rest(tables
     assert not (out / "tables.md").exists()
 
 
+
+
+def test_pessimistic_alone_trains_the_runs_it_trains_beside_plain(tables, quick_run, tmp_path):
+    """``--variants pessimistic`` trains a program of the pessimistic runs alone (the cells
+    of another penalty, without plain's again): the same configurations and seeds as the
+    pessimistic half of the program beside plain, so the same final numbers."""
+    out = tmp_path / "alone"
+    argv = ["--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--variants",
+            "pessimistic", "--out", str(out)]
+    assert tables.main(argv) == 0
+    assert sorted(p.name for p in (out / "cells").iterdir()) == [
+        "turbulence-iddpg-pessimistic.json"]
+    alone = json.loads((out / "cells" / "turbulence-iddpg-pessimistic.json").read_text())
+    beside = json.loads((quick_run / "cells" / "turbulence-iddpg-pessimistic.json").read_text())
+    assert alone["params"] == beside["params"] and alone["seeds"] == beside["seeds"]
+    for metric, values in beside["final"].items():
+        assert alone["final"][metric] == pytest.approx(values, abs=1e-5), metric

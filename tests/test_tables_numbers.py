@@ -190,3 +190,21 @@ def test_the_on_policy_familys_numbers_run_over_its_own_six_pairs(tables):
                                     ("hidden obstacle", "turbulence", "strong wind")
                                     for learner in ("IPPO", "MAPPO")]
     assert change["mean"] == pytest.approx(np.mean([0.0, 1 - 0.16 / 0.6] * 3), rel=1e-9)
+
+
+def test_variants_choose_the_programs_and_pessimistic_alone_is_its_own():
+    """``tables.py --variants``: plain always trains beside pessimistic (one program);
+    pessimistic without plain is a program of its own; the default is the whole grid."""
+    from experiments.tables_grid import Settings, jobs_of
+
+    settings = Settings(lam=3.0, penalty=1.0, scenarios=("turbulence",), algos=("iddpg",))
+    names = lambda variants: [job.name for job in jobs_of(settings, variants)]  # noqa: E731
+    assert names(("plain", "pessimistic", "ccr")) == [
+        "turbulence-iddpg-plain+pessimistic", "turbulence-iddpg-ccr"]
+    assert [job.name for job in jobs_of(settings)] == names(("plain", "pessimistic", "ccr"))
+    assert names(("pessimistic",)) == ["turbulence-iddpg-pessimistic"]
+    assert names(("plain",)) == ["turbulence-iddpg-plain+pessimistic"]
+    assert names(("ccr",)) == ["turbulence-iddpg-ccr"]
+    assert names(("pessimistic", "ccr")) == ["turbulence-iddpg-pessimistic",
+                                              "turbulence-iddpg-ccr"]
+    assert settings.run_params("pessimistic") == {"penalty": 1.0}
