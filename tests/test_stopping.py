@@ -56,7 +56,10 @@ def assert_one_line_stop(status: int | None, err: str, prog: str, name: str = "S
 
 def test_train_stopped_at_any_moment_before_training_exits_130_in_one_line(tmp_path: Path):
     """The moments are spread over the time a reference process takes from its start to
-    the end of its compilation, measured first, alike on any machine."""
+    the end of its compilation, measured first, alike on any machine. On a loaded machine a
+    process may compile sooner than the reference did, so a late moment can fall after its
+    compilation: that stop is the training stop (the chunk finished, a checkpoint kept),
+    checked as such, and at least the first moments must fall before training."""
     command = [sys.executable, "-m", "ccrjax.train", *TINY, "--no-compilation-cache"]
     began = time.monotonic()
     reference = subprocess.Popen([*command, "--out", str(tmp_path / "reference")], cwd=ROOT,
@@ -68,13 +71,23 @@ def test_train_stopped_at_any_moment_before_training_exits_130_in_one_line(tmp_p
             break
     reference.kill()
     reference.communicate()
+    before_training = 0
     for fraction in (0.01, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8, 0.9):
         out = tmp_path / f"at-{fraction}"
         status, err, took = signalled([*command, "--out", str(out)], fraction * compiled,
                                       tmp_path / f"cache-{fraction}")
+        assert not (out / "summary.json").exists(), fraction
+        if "compiled in" in err:  # this process compiled before the moment came
+            last = err.strip().splitlines()[-1]
+            assert status == 130 and "Traceback" not in err, err
+            assert last.startswith("python -m ccrjax.train: stopped by SIGINT at "), err
+            assert checkpoint_steps(out), fraction
+            continue
+        before_training += 1
         assert_one_line_stop(status, err, "python -m ccrjax.train")
         assert took < 10, (fraction, took)
-        assert not (out / "summary.json").exists() and checkpoint_steps(out) == []
+        assert checkpoint_steps(out) == []
+    assert before_training >= 5, before_training
 
 
 @pytest.mark.parametrize("command", ["evaluate", "sweep", "demo", "search"])
