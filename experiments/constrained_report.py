@@ -198,7 +198,8 @@ def rule_value_lines(found: dict[str, Any] | None) -> list[str]:
         return lines + ["", f"Not yet: {found['missing']}."]
     lines += ["", "Read from: " + "; ".join(
         f"{NAMES[v]}'s cells, `{folder}`" for v, folder in found["sources"].items())
-        + " (a longer run's evaluation at this budget is the run of this budget)."]
+        + " (a run of a longer budget is read at this one: its first steps are the run of"
+        " this budget)."]
     lines += ["", "| pair | variant | danger | success | training danger |",
               "|---|---|---|---|---|"]
     for key, row in found["pairs"].items():
