@@ -65,6 +65,7 @@ from experiments.ledger import (
     open_experiment,
     read_json,
     refuse_untrained,
+    repo_relative,
     settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
@@ -77,6 +78,7 @@ from experiments.tables_grid import (
     cell_stem,
     grid_cells,
     grid_jobs,
+    job_cells,
     jobs_of,
     reference_rows,
     run_grid,
@@ -162,7 +164,8 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
                              f"--searches, or give {option}")
     chosen = search["selection"]
     if quick:
-        return float(chosen["value"]), f"the provisional choice of the search in {path.parent}"
+        return (float(chosen["value"]),
+                f"the provisional choice of the search in {repo_relative(path.parent)}")
     if not chosen.get("protocol"):
         option = "--lam" if variant == "ccr" else "--penalty"
         why = chosen.get("provisional_because") or "made before selections said so"
@@ -175,7 +178,7 @@ def selected(variant: str, given: float | None, quick: bool, searches: Path | No
                              f"{search.get('budgets')}, not these tables' {budgets}: run it "
                              "again at these budgets, or name searches made at them with "
                              "--searches")
-    where = path.parent.name if searches == default else str(path.parent)
+    where = path.parent.name if searches == default else repo_relative(path.parent)
     fallback = " (its fallback: no value met the rule)" if chosen.get("fallback") else ""
     return float(chosen["value"]), f"selected by the search in {where}{fallback}"
 
@@ -243,9 +246,12 @@ def main(argv: list[str] | None = None) -> int:
     cells, missing = grid_cells(out, settings)
     family = protocol.family(settings.algos)
     if missing:
+        named = jobs_of(settings, variants)
+        made = sum(job_cells(out, job, settings) is not None for job in named)
         total = len(grid_jobs(family))
-        print(f"{total - len(missing)} of {total} programs made in {out}; the tables need them all "
-              f"(missing: {', '.join(missing)}): run again naming the others, or all")
+        print(f"{made} of the {len(named)} programs this command names made in {out}; the "
+              f"tables are written once the whole grid's {total} exist (missing: "
+              f"{', '.join(missing)}): run again naming the others, or all")
         return 0
     controllers = reference_rows(settings)
     whole = dataclasses.replace(settings, scenarios=PAPER_SCENARIOS, algos=family)  # all exist

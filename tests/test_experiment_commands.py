@@ -385,6 +385,10 @@ def test_only_the_protocols_selection_feeds_the_tables(search, tables, tmp_path,
             "not the protocol's choice", str(searches / "ccr"))
     assert tables.selected("pessimistic", None, False, searches) == (
         3.0, f"selected by the search in {searches / 'pessimistic'}")
+    # One inside the repository is named relative to it, never by this machine's path.
+    inside = tables.RESULTS / "search" / ".." / "search"  # the committed one, spelt apart
+    assert tables.selected("pessimistic", None, False, inside)[1].startswith(
+        "selected by the search in experiments/results/search/pessimistic")
     # A choice by the fallback says so; a search at budgets the protocol no longer has is
     # refused (its own flag was written when it ran).
     record = json.loads((searches / "pessimistic" / "search.json").read_text())

@@ -297,14 +297,17 @@ def test_a_narrower_invocation_trains_its_programs_and_waits_for_the_rest(tables
 
 
 
-def test_pessimistic_alone_trains_the_runs_it_trains_beside_plain(tables, quick_run, tmp_path):
+def test_pessimistic_alone_trains_the_runs_it_trains_beside_plain(tables, quick_run, tmp_path,
+                                                                  capsys):
     """``--variants pessimistic`` trains a program of the pessimistic runs alone (the cells
     of another penalty, without plain's again): the same configurations and seeds as the
-    pessimistic half of the program beside plain, so the same final numbers."""
+    pessimistic half of the program beside plain, so the same final numbers. Its end says
+    the program it names is made, and that the tables wait for the whole grid."""
     out = tmp_path / "alone"
     argv = ["--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--variants",
             "pessimistic", "--out", str(out)]
     assert tables.main(argv) == 0
+    assert "1 of the 1 programs this command names made" in capsys.readouterr().out
     assert sorted(p.name for p in (out / "cells").iterdir()) == [
         "turbulence-iddpg-pessimistic.json"]
     alone = json.loads((out / "cells" / "turbulence-iddpg-pessimistic.json").read_text())
