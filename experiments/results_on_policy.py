@@ -17,12 +17,14 @@ from typing import Any
 from experiments import protocol
 from experiments.paper import PAPER_SCENARIOS
 from experiments.results_sections import (
+    interval,
     pair_name,
     pair_table,
     pct,
     records_of,
     rliable_text,
     search_rows,
+    span,
 )
 
 FAMILY = protocol.ON_POLICY_ALGOS
@@ -92,6 +94,36 @@ def hypothesis_lines(result: dict[str, Any]) -> list[str]:
         f"{found['H-P1']} of {len(PAIRS)} pairs{which('H-P1')}.",
         f"* H-P2, CCR's danger is no lower than the tuned penalty's: holds in "
         f"{found['H-P2']} of {len(PAIRS)} pairs.",
+    ]
+
+
+def summary_lines(tables: dict[str, Any] | None) -> list[str]:
+    """The summary's bullet on the on-policy tables (none before they are made): CCR
+    against plain and against the tuned penalty over the family's pairs, and the
+    amendment's two hypotheses."""
+    if tables is None:
+        return []
+    found, by_key = hypotheses(tables), records_of(tables)
+    plain = tables["claims"]["danger_lower_vs_plain"]
+    better = tables["aggregates"]["danger_frequency"]["probability_of_improvement"]
+    danger = {v: [by_key[(s, a, v)]["danger_frequency"]["mean"] for s, a in PAIRS]
+              for v in ("pessimistic", "ccr")}
+    held = [pair_name(p["scenario"], p["algo"]) for p in found["pairs"] if p["H-P1"]]
+    settings = tables["settings"]
+    return [
+        f"* **The on-policy learners** (IPPO and MAPPO, "
+        f"{protocol.ON_POLICY_BUDGET / 1e6:g}M steps, lambda {settings['lam']:g}, penalty "
+        f"{settings['penalty']:g}, {len(settings['seeds'])} seeds per cell): CCR's danger is "
+        f"below plain's in {plain['cells']} of {len(PAIRS)} pairs ({plain['significant']} "
+        f"significantly, {plain['significant_holm']} after Holm); the danger reduction "
+        f"against plain is {interval(tables['headlines']['danger_reduction_vs_plain'])} and "
+        f"the probability that a CCR run is safer than a plain one "
+        f"{better['plain']['probability']:.2f}. H-P1 (lower danger at most "
+        f"{100 * SUCCESS_MARGIN:g} points of success below plain's) holds in {found['H-P1']} "
+        f"of {len(PAIRS)}" + (f" ({'; '.join(held)})" if held else "") + "; H-P2 (no lower "
+        f"than the tuned penalty's) in {found['H-P2']} of {len(PAIRS)}: the penalty is in "
+        f"danger {span(danger['pessimistic'])} of the time against CCR's "
+        f"{span(danger['ccr'])}.",
     ]
 
 

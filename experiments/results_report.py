@@ -29,6 +29,7 @@ from experiments.ledger import RESULTS, read_json
 from experiments.results_on_policy import SEARCHES as ON_POLICY_SEARCHES
 from experiments.results_on_policy import TABLES as ON_POLICY_TABLES
 from experiments.results_on_policy import on_policy_section
+from experiments.results_on_policy import summary_lines as on_policy_summary
 from experiments.results_sections import (
     STATIC_EXPLANATIONS,
     budgets_section,
@@ -75,7 +76,8 @@ def report(results: Path = RESULTS) -> str:
         "[`README.md`](../../README.md); how the experiments run and resume: "
         "[`docs/experiments.md`](../../docs/experiments.md).", "",
     ]
-    lines += summary_section(tables, searches)
+    summary = summary_section(tables, searches)
+    lines += summary[:-1] + on_policy_summary(on_policy_tables) + summary[-1:]
     if tables:
         lines += ["## The claims, counted as the paper makes them", "", *scorecard(tables)]
     for folder, label in TABLES:

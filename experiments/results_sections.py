@@ -282,9 +282,10 @@ def summary_section(tables: dict[str, dict[str, Any]],
     if tables and all(r["claims"]["danger_lower_vs_plain"]["significant_holm"] == 0
                       and r["claims"]["danger_lower_vs_pessimistic"]["cells"] == 0
                       for r in tables.values()):
-        lines += ["**CCR's effect on danger does not reproduce here** at any budget: in no "
-                  "pair is CCR's danger significantly below plain's after Holm's correction "
-                  "over the 9, and in none is it below the tuned pessimistic baseline's.", ""]
+        lines += ["**CCR's effect on danger does not reproduce here** with the paper's "
+                  "learners at any budget: in no pair is CCR's danger significantly below "
+                  "plain's after Holm's correction over the 9, and in none is it below the "
+                  "tuned pessimistic baseline's.", ""]
     for label, result in tables.items():
         claims = result["claims"]
         plain = claims["danger_lower_vs_plain"]

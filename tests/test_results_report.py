@@ -145,6 +145,13 @@ def test_the_on_policy_section_counts_the_amendments_hypotheses_per_pair(monkeyp
     assert "| turbulence, MAPPO | 30.0 / 20.0 / 10.0 ↓* ↓† | 90.0 / 90.0 / 80.0 ↓* ↓† |" in text
     assert "lambda: not made yet (`python experiments/search.py --variant ccr" in text
     assert "not made yet (`python experiments/tables.py" not in text
+    summary = "\n".join(section.summary_lines(tables))
+    assert "H-P1 (lower danger at most 5 points of success below plain's) holds in 3 of 6 " \
+           "(hidden obstacle, IPPO; hidden obstacle, MAPPO; turbulence, IPPO); H-P2 (no " \
+           "lower than the tuned penalty's) in 2 of 6: the penalty is in danger 20.0% of " \
+           "the time against CCR's 10.0 to 30.0%." in summary
+    assert "CCR's danger is below plain's in 4 of 6 pairs (4 significantly" in summary
+    assert section.summary_lines(None) == []
     empty = "\n".join(section.on_policy_section({}, None))
     assert "Their tables are not made yet (`python experiments/tables.py --algos ippo " \
            "mappo" in empty
