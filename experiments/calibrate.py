@@ -84,7 +84,7 @@ PAPER_LEARNERS = {"iddpg": "DDPG", "maddpg": "MADDPG", "maac": "MAAC"}
 # (box9) meets every band the continuous actions do; the MPE's five only shows its cost.
 ACTION_SET_CONTROLLERS = {"box9": None, "mpe5": ("go_to_goal", "oracle")}  # None: all
 REGIMES_SELECT = 128  # --regimes: selection episodes per memoriser height
-REGIMES_MEASURED = "217 s"  # the full grid's time in --help (measured at 443c89a + this mode)
+REGIMES_MEASURED = "369 s"  # the full grid's time in --help (experiments/results/regimes)
 
 
 def measure(scenario: str, controller: str, episodes: int, seed: int,
@@ -224,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
         "hidden obstacle, turbulence, strong wind x hazard placement x formation: the five "
         "rows go_to_goal, self_reactive, team_informed, oracle, memoriser, go-to-goal's "
         "forewarned share and the 'informative' flag (experiments/regimes.py). The full grid "
-        f"(27 regimes, 1024 episodes per row, {REGIMES_SELECT} selection episodes per "
+        f"({len(regimes.REGIME_SCENARIOS) * len(regimes.PLACEMENTS) * len(regimes.FORMATIONS)} "
+        f"regimes, 1024 episodes per row, {REGIMES_SELECT} selection episodes per "
         f"height) took {REGIMES_MEASURED} on a 2-core CPU.")
     regime.add_argument("--regimes", action="store_true",
                         help="measure the information regimes instead of the calibration")
@@ -244,7 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     regime.add_argument("--spacings", nargs="+", type=cli.float_in(0.0),
                         default=[spacing or 0.0 for _, spacing in regimes.FORMATIONS],
                         help="formations: 0 for abreast, else a column with this spacing "
-                             "(default 0 0.3 0.6)")
+                             "(default "
+                             f"{' '.join(f'{s or 0:g}' for _, s in regimes.FORMATIONS)})")
     add_out_options(parser, "calibration", Path("runs/calibration"))
     return parser
 
