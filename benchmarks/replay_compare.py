@@ -375,7 +375,8 @@ def measure(args: argparse.Namespace) -> list[dict[str, Any]]:
     capacity = replay.replay_capacity(args.capacity, layout.block)
     seeds, calls = args.seeds, args.calls
     contenders = [ours(layout, capacity), flashbax_items(layout, capacity)]
-    shapes = {k: [list(v.shape), str(v.dtype)] for k, v in vars(layout.example).items()}
+    shapes = {k: [list(v.shape), str(v.dtype)] for k, v in vars(layout.example).items()
+              if v is not None}  # a channel the configuration does not use (cost) is None
     base = {
         "algo": args.algo, "scenario": args.scenario, "seeds": seeds, "capacity": capacity,
         "block": layout.block, "batch": layout.batch, "transition": shapes,

@@ -286,6 +286,24 @@ def test_the_training_benchmark_times_a_grid_shaped_program(subprocess_env):
         assert row["env_steps_per_s_all_seeds"] == pytest.approx(2 * row["env_steps_per_s"])
 
 
+@pytest.mark.slow
+def test_the_replay_benchmark_runs_and_both_buffers_restore_exactly(subprocess_env, tmp_path):
+    """``benchmarks/replay_compare.py`` (``make bench``'s third) at a small capacity: one row
+    per buffer, each holding what was inserted and restored exactly (a smoke test: the
+    timings are not asserted)."""
+    process = subprocess.run(
+        [sys.executable, "benchmarks/replay_compare.py", "--capacity", "20000", "--seeds", "1",
+         "--repeats", "1", "--calls", "2", "--tmpdir", str(tmp_path), "--json"],
+        cwd=ROOT, env=subprocess_env, capture_output=True, text=True, timeout=300)
+    assert process.returncode == 0, process.stderr
+    rows = [json.loads(line) for line in process.stdout.splitlines()]
+    buffers = {row["buffer"]: row for row in rows[:2]}
+    assert list(buffers) == ["ours", "flashbax"] and rows[2]["buffer"] == "flashbax/ours"
+    for row in buffers.values():
+        assert row["restored_identical"] is True and row["bytes_per_seed"] > 0
+        assert "cost" not in row["transition"]  # plain training stores no cost channel
+
+
 def test_the_training_benchmark_refuses_a_malformed_update_setting_in_one_line(
         subprocess_env):
     """``--maac-updates`` takes updates x batch (``1x256``); anything else is one line and
