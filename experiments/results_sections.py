@@ -369,7 +369,8 @@ STATIC_EXPLANATIONS = [
     "([`docs/environment.md`](../../docs/environment.md)).", "",
     "## Speed", "",
     "Throughput of the environment and the learners on CPU and GPU, against JaxMARL: "
-    "[`docs/speed.md`](../../docs/speed.md); the GPU logs with command, commit and device: "
+    "[`docs/speed.md`](../../docs/speed.md); the logs with command, commit and device: "
+    "[`cpu/`](cpu/README.md) (`make bench` and the learners' sanity run on the 2-core CPU), "
     "[`gpu/`](gpu/README.md).", "",
     "## The files", "",
     "| folder | what | written by |", "|---|---|---|",
@@ -392,6 +393,8 @@ STATIC_EXPLANATIONS = [
     "emergencies | `python experiments/ccr_signal.py` |",
     "| [`regimes/`](regimes/regimes.md) | the controllers over the regimes' grid | "
     "`python experiments/calibrate.py --regimes` |",
+    "| [`cpu/`](cpu/README.md) | `make bench` and sanity logs, 2-core CPU | "
+    "the commands they name |",
     "| [`gpu/`](gpu/README.md) | GPU logs | the commands they name |",
     "",
 ]
