@@ -45,6 +45,7 @@ from experiments.results_sections import (
 PROG = "python -m experiments.results_report"
 TABLES = (("tables", "3M"), ("tables_6m", "6M"))  # folder, budget label
 SEARCHES = (("search", "3M"), ("search_6m", "6M"))
+LAGRANGIAN_SEARCH = ("search_lagrangian", "2M")  # its amendment's budget
 CONSTRAINED = "constrained"  # experiments/constrained.py's folder
 BUDGETS = (("budgets", "the budget seeds 200-202"), ("longer_budget", "the tables' seeds"),
            ("budgets_on_policy", "the budget seeds 200-202 (the on-policy learners)"),
@@ -58,6 +59,9 @@ def report(results: Path = RESULTS) -> str:
     searches = {label: found for folder, label in SEARCHES
                 if (found := {v: s for v in ("ccr", "pessimistic")
                               if (s := read_json(results / folder / v / "search.json"))})}
+    folder, label = LAGRANGIAN_SEARCH
+    if lagrangian := read_json(results / folder / "search.json"):
+        searches = {label: {"lagrangian": lagrangian}, **searches}
     budgets = {folder: (what, r) for folder, what in BUDGETS
                if (r := read_json(results / folder / "budgets.json"))}
     regimes = read_json(results / "regimes" / "regimes.json")
@@ -69,8 +73,9 @@ def report(results: Path = RESULTS) -> str:
         "# Results", "",
         "What ccrjax has measured: the paper's Tables I and II re-run under the "
         "preregistered protocol ([`docs/protocol.md`](../../docs/protocol.md)), the searches "
-        "of CCR's lambda and of the pessimistic penalty, the budgets and the information "
-        "regimes. This page is written by `python -m experiments.results_report` (and by "
+        "of CCR's lambda, the pessimistic penalty and the Lagrangian's cost limit, the "
+        "budgets and the information regimes. This page is written by "
+        "`python -m experiments.results_report` (and by "
         "`experiments/tables.py` when it writes here) from the result files it links to; "
         "each cell's file names its command, commit and device. The manual is the top-level "
         "[`README.md`](../../README.md); how the experiments run and resume: "

@@ -176,6 +176,10 @@ def tables_section(folder: str, label: str, result: dict[str, Any]) -> list[str]
 
 
 # ------------------------------------------------------------------------------ the searches
+# The name of each variant's searched value.
+SEARCHED = {"ccr": "lambda", "pessimistic": "penalty", "lagrangian": "cost limit"}
+
+
 def search_rows(search: dict[str, Any]) -> dict[float, tuple[float, float]]:
     """Each searched value's danger and success, averaged over the pairs and seeds."""
     return {row["value"]: (row["danger_frequency"]["mean"], row["success_rate"]["mean"])
@@ -185,7 +189,8 @@ def search_rows(search: dict[str, Any]) -> dict[float, tuple[float, float]]:
 def searches_section(searches: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
     lines = [
         "## The searches", "",
-        "CCR's lambda and the pessimistic penalty, searched alike on the selection seeds "
+        "CCR's lambda, the pessimistic penalty and the Lagrangian's cost limit (at its "
+        "amendment's 2M steps), searched alike on the selection seeds "
         "100-102 over the 9 pairs by the protocol's rule (the lowest mean danger among the "
         "values whose mean success is at most 5 points below value 0's; "
         "[`docs/protocol.md`](../../docs/protocol.md)). Danger / success in %, averaged over "
@@ -193,7 +198,7 @@ def searches_section(searches: dict[str, dict[str, dict[str, Any]]]) -> list[str
     ]
     for label, by_variant in searches.items():
         for variant, search in by_variant.items():
-            name = {"ccr": "lambda", "pessimistic": "penalty"}[variant]
+            name = SEARCHED[variant]
             chosen = search["selection"]["value"]
             rows = search_rows(search)
             cells = [(f"**{value:g}**" if value == chosen else f"{value:g}")
@@ -313,12 +318,14 @@ def summary_section(tables: dict[str, dict[str, Any]],
         for variant, search in by_variant.items():
             rows = search_rows(search)
             chosen = search["selection"]["value"]
-            name = {"ccr": "lambda", "pessimistic": "penalty"}[variant]
+            name = SEARCHED[variant]
             parts.append(f"{name} {chosen:g} ({pct(rows[chosen][0])}% danger at "
                          f"{pct(rows[chosen][1])}% success)")
         base = search_rows(next(iter(by_variant.values())))[0.0]
-        lines.append(f"* **The searches at {label}** chose " + " and ".join(parts)
-                     + f", against {pct(base[0])}% at {pct(base[1])}% without either.")
+        alone = len(parts) == 1
+        lines.append(f"* **The {'search' if alone else 'searches'} at {label}** chose "
+                     + " and ".join(parts) + f", against {pct(base[0])}% at {pct(base[1])}% "
+                     + ("unconstrained." if alone else "without either."))
     return lines + [""]
 
 
@@ -383,6 +390,13 @@ STATIC_EXPLANATIONS = [
     "| [`search/`](search/README.md) | the lambda (`ccr/`) and penalty (`pessimistic/`) "
     "searches at 3M | `python experiments/search.py --variant ccr` (and `pessimistic`) |",
     "| [`search_6m/`](search_6m) | both searches at 6M | the same, `--steps 6000000` |",
+    "| [`search_lagrangian/`](search_lagrangian/search.md) | the Lagrangian's cost limit at "
+    "2M | `python experiments/search.py --variant lagrangian --out "
+    "experiments/results/search_lagrangian --force` |",
+    "| [`constrained/`](constrained) | the Lagrangian's tables at 2M (`cells/`) and the "
+    "pessimistic cells of penalty 1 at 2M (`tables_at_budget/`) | `python "
+    "experiments/constrained.py --out experiments/results/constrained --force` (and "
+    "`experiments/tables.py --steps 2000000 --lam 3 --penalty 1 --variants pessimistic`) |",
     "| [`budgets/`](budgets/budgets.md) | the plain learners' budgets | "
     "`python experiments/budgets.py` |",
     "| [`longer_budget/`](longer_budget/budgets.md) | the longer-budget check on the tables' "

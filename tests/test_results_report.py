@@ -34,7 +34,8 @@ def test_the_same_files_give_the_same_report(report):
 def copy_results(tmp_path: Path) -> Path:
     """The result files the report reads (not the cells or figures)."""
     out = tmp_path / "results"
-    for pattern in ("tables*/tables.json", "search*/*/search.json", "*budget*/budgets.json",
+    for pattern in ("tables*/tables.json", "search*/*/search.json", "search*/search.json",
+                    "constrained/constrained.json", "*budget*/budgets.json",
                     "study/budgets*/budgets.json", "regimes/regimes.json"):
         for path in RESULTS.glob(pattern):
             target = out / path.relative_to(RESULTS)
@@ -58,6 +59,22 @@ def test_a_changed_result_changes_the_report(report, tmp_path):
     assert "| turbulence, MADDPG | 39.8 / 2.0 / 12.3" in text
     assert "| CCR's danger below pessimistic's | 4 of 9" in text
     assert "does not reproduce here" not in text  # the verdict follows the numbers
+
+
+def test_the_lagrangian_search_is_reported_with_its_choice(report, tmp_path):
+    out = copy_results(tmp_path)
+    path = out / "search_lagrangian" / "search.json"
+    result = json.loads(path.read_text())
+    result["selection"]["value"] = 0.05
+    for row in result["aggregate"]:
+        if row["value"] == 0.05:
+            row["danger_frequency"]["mean"] = 0.0123
+    path.write_text(json.dumps(result))
+    text = report.report(out)
+    assert "**The search at 2M** chose cost limit 0.05 (1.2% danger at" in text
+    assert "2M, cost limit: 0: " in text and "; **0.05**: 1.2 / " in text
+    path.unlink()
+    assert "2M, cost limit:" not in report.report(out)
 
 
 def test_a_study_regimes_budget_is_reported(report, tmp_path):
