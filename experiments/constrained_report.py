@@ -315,7 +315,9 @@ def results_section(folder: str, result: dict[str, Any]) -> list[str]:
     if at_rule.get("values"):
         values = ", ".join(f"{PARAMETERS[v]} {x:g}" for v, x in at_rule["values"].items())
         lines += ["", f"The rule at this budget chose {values}, not the tables' values: "
-                  + ("their cells at this budget are in the report." if not at_rule["missing"]
+                  + (f"their cells at this budget are in [`constrained.md`]"
+                     f"({folder}/constrained.md)."
+                     if not at_rule["missing"]
                      else f"their cells at this budget are not made yet ({at_rule['missing']}).")]
     lines += ["", f"P(the Lagrangian is less dangerous than pessimistic) = "
               f"{improvement['lagrangian_over_pessimistic']['probability']:.2f}; P(CCR less "
@@ -327,3 +329,32 @@ def results_section(folder: str, result: dict[str, Any]) -> list[str]:
               f"{len(found['pairs_plain_above_limit'])} pairs where plain is above the limit).",
               ""]
     return lines
+
+
+def summary_lines(result: dict[str, Any] | None) -> list[str]:
+    """The results report's summary bullet on the constrained baseline (``result``: a
+    ``constrained.json``; none where it is not made yet)."""
+    if not result:
+        return []
+    settings = result["settings"]
+    iqm = {metric: found["iqm"] for metric, found in result["aggregates"].items()}
+    used = result["tables_values"]
+    found = result["hypotheses"]
+    versus = found["versus_pessimistic"]["danger_frequency"]
+
+    def row(metric: str) -> str:
+        return (f"{iqm[metric]['lagrangian']['iqm']:.1%} against plain's "
+                f"{iqm[metric]['plain']['iqm']:.1%}, CCR's {iqm[metric]['ccr']['iqm']:.1%} and "
+                f"pessimistic's {iqm[metric]['pessimistic']['iqm']:.1%}")
+
+    penalty = ", ".join(f"{v:g}" for v in used["pessimistic"]["penalty"])
+    lam = ", ".join(f"{v:g}" for v in used["ccr"]["lam"])
+    return [
+        f"* **The Lagrangian at {settings['steps'] / 1e6:g}M steps** (cost limit "
+        f"{settings['cost_limit']:g}, {len(settings['seeds'])} seeds per cell; the tables' "
+        f"penalty {penalty} and lambda {lam} read at the same budget; IQM over the 9 pairs): "
+        f"danger {row('danger_frequency')}; success {row('success_rate')}; danger in "
+        f"training {row('training_danger')}. Where plain is above the limit "
+        f"({len(found['pairs_plain_above_limit'])} pairs) the Lagrangian meets it within its "
+        f"seeds' spread in {found['limit_met_within_spread']}; the penalty is significantly "
+        f"less dangerous than the Lagrangian in {versus['significantly_higher']} of 9 pairs."]

@@ -25,6 +25,7 @@ from pathlib import Path
 from ccrjax import cli
 from ccrjax.run.folder import write_atomic
 from experiments.constrained_report import results_section
+from experiments.constrained_report import summary_lines as constrained_summary
 from experiments.ledger import RESULTS, read_json
 from experiments.results_on_policy import SEARCHES as ON_POLICY_SEARCHES
 from experiments.results_on_policy import TABLES as ON_POLICY_TABLES
@@ -82,7 +83,8 @@ def report(results: Path = RESULTS) -> str:
         "[`docs/experiments.md`](../../docs/experiments.md).", "",
     ]
     summary = summary_section(tables, searches)
-    lines += summary[:-1] + on_policy_summary(on_policy_tables) + summary[-1:]
+    lines += (summary[:-1] + constrained_summary(constrained) + on_policy_summary(on_policy_tables)
+              + summary[-1:])
     if tables:
         lines += ["## The claims, counted as the paper makes them", "", *scorecard(tables)]
     for folder, label in TABLES:

@@ -77,6 +77,24 @@ def test_the_lagrangian_search_is_reported_with_its_choice(report, tmp_path):
     assert "2M, cost limit:" not in report.report(out)
 
 
+def test_the_constrained_tables_reach_the_summary(report, tmp_path):
+    out = copy_results(tmp_path)
+    path = out / "constrained" / "constrained.json"
+    result = json.loads(path.read_text())
+    result["aggregates"]["danger_frequency"]["iqm"]["lagrangian"]["iqm"] = 0.0456
+    result["hypotheses"]["limit_met_within_spread"] = 1
+    result["hypotheses"]["versus_pessimistic"]["danger_frequency"]["significantly_higher"] = 2
+    path.write_text(json.dumps(result))
+    text = report.report(out)
+    summary = text.split("## The claims")[0]
+    assert "* **The Lagrangian at 2M steps** (cost limit 0.3, 10 seeds per cell" in summary
+    assert "danger 4.6% against plain's" in summary
+    assert "the Lagrangian meets it within its seeds' spread in 1;" in summary
+    assert "significantly less dangerous than the Lagrangian in 2 of 9 pairs" in summary
+    path.unlink()
+    assert "The Lagrangian at 2M steps" not in report.report(out)
+
+
 def test_a_study_regimes_budget_is_reported(report, tmp_path):
     out = copy_results(tmp_path)
     path = out / "study" / "budgets_column" / "budgets.json"
