@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ccrjax.run.folder import METRIC_RANGES
-from ccrjax.run.stats import iqm, mean_ci, probability_of_improvement, welch
+from ccrjax.run.stats import holm, iqm, mean_ci, probability_of_improvement, welch
 from ccrjax.training import ALGOS
 from experiments import protocol
 from experiments.paper import PAPER_SCENARIOS
@@ -205,3 +205,36 @@ def hypotheses(rows: dict[tuple[str, str], dict[str, Any]], cost_limit: float
     return {"pairs_plain_above_limit": [f"{s}-{a}" for s, a in above],
             "limit_met_within_spread": int(sum(met)), "h_l1_holds": bool(above) and
             sum(met) > len(above) / 2, "versus_pessimistic": versus}
+
+
+SCORED = ("danger_frequency", "success_rate", "training_danger")
+LOWER_IS_BETTER = {"danger_frequency": True, "success_rate": False, "training_danger": True}
+
+
+def scorecard(rows: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:
+    """The tables' scorecard extended to the Lagrangian: per baseline and metric, in how
+    many of the pairs the Lagrangian's mean is better than the baseline's (lower danger,
+    higher success) and worse, and how many of those differences are significant (Welch,
+    p < 0.05, each pair alone) and survive Holm's correction over the pairs (one family per
+    baseline and metric, as the tables count CCR against plain and pessimistic). "CCR
+    better than the Lagrangian" is the ``ccr`` row's ``worse``."""
+    pairs = list(rows)
+    result: dict[str, Any] = {}
+    for base in BASELINES:
+        result[base] = {}
+        for metric in SCORED:
+            tests = [rows[pair]["welch"][base][metric] for pair in pairs]
+            rejected = holm([test["p"] for test in tests])
+            counts = {}
+            for side, sign in (("better", 1.0), ("worse", -1.0)):
+                direction = -1.0 if LOWER_IS_BETTER[metric] else 1.0
+                wins = [sign * direction * test["difference"] > 0 for test in tests]
+                counts[side] = {
+                    "cells": int(sum(wins)),
+                    "significant": int(sum(w and t["significant"] for w, t in zip(
+                        wins, tests, strict=True))),
+                    "significant_holm": int(sum(w and bool(r) for w, r in zip(
+                        wins, rejected, strict=True))),
+                }
+            result[base][metric] = {**counts, "of": len(pairs)}
+    return result

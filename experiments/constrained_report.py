@@ -21,6 +21,7 @@ from experiments.constrained_analysis import (
     hypotheses,
     pair_rows,
     rule_value_rows,
+    scorecard,
     selection_at,
 )
 from experiments.ledger import read_json, repo_relative
@@ -169,6 +170,7 @@ def report(lagrangian: dict[tuple[str, str], dict], settings: Any, tables: Path,
         "pairs": {f"{s}-{a}": row for (s, a), row in rows.items()},
         "aggregates": aggregates(rows, resamples),
         "hypotheses": hypotheses(rows, settings.cost_limit),
+        "scorecard": scorecard(rows),
         "commits": sorted({cell["commit"] for cell in lagrangian.values()}),
         "devices": sorted({cell["device"] for cell in lagrangian.values()}),
     }
@@ -212,6 +214,28 @@ def rule_value_lines(found: dict[str, Any] | None) -> list[str]:
                 f"{_cell(values_of['danger_frequency'])}{marks['danger_frequency']} | "
                 f"{_cell(values_of['success_rate'])}{marks['success_rate']} | "
                 f"{_cell(values_of['training_danger'])}{marks['training_danger']} |")
+    return lines
+
+
+def scorecard_lines(found: dict[str, Any] | None) -> list[str]:
+    """The scorecard extended to the Lagrangian (``found``: :func:`scorecard`'s), as a
+    table: per comparison, the pairs where one variant is better (lower danger, higher
+    success), how many significantly and how many after Holm."""
+    if not found:
+        return []
+
+    def count(side: dict[str, int], of: int) -> str:
+        return (f"{side['cells']} of {of} ({side['significant']} significantly, "
+                f"{side['significant_holm']} after Holm)")
+
+    lines = ["| over the 9 pairs | danger | success | danger in training |",
+             "|---|---|---|---|"]
+    rows = [(f"the Lagrangian better than {NAMES[base]}", base, "better") for base in BASELINES]
+    rows.append(("CCR better than the Lagrangian", "ccr", "worse"))
+    for label, base, side in rows:
+        lines.append(f"| {label} | " + " | ".join(
+            count(found[base][metric][side], found[base][metric]["of"])
+            for metric in ("danger_frequency", "success_rate", "training_danger")) + " |")
     return lines
 
 
@@ -270,6 +294,10 @@ def markdown(result: dict[str, Any]) -> str:
                           for b in BASELINES)
         lines.append(f"| {metric.replace('_', ' ')} (IQM) | {iqm_text} | {over} | "
                      f"{improvement['ccr_over_lagrangian']['probability']:.2f} |")
+    if "scorecard" in result:
+        lines += ["", "## The scorecard, extended", "",
+                  "Better: lower danger, higher success; Welch p < 0.05 per pair, Holm over "
+                  "the 9 pairs of each comparison.", "", *scorecard_lines(result["scorecard"])]
     found = result["hypotheses"]
     lines += ["", "## The amendment's hypotheses", "",
               f"H-L1: plain's mean danger is above the limit in "
@@ -310,6 +338,8 @@ def results_section(folder: str, result: dict[str, Any]) -> list[str]:
                                ("danger in training", training)):
         lines.append(f"| {name} | " + " | ".join(
             f"{found_metric['iqm'][v]['iqm']:.1%}" for v in (*BASELINES, "lagrangian")) + " |")
+    if "scorecard" in result:
+        lines += ["", *scorecard_lines(result["scorecard"])]
     improvement = danger["probability_of_improvement"]
     at_rule = result.get("at_rule_values") or {}
     if at_rule.get("values"):
@@ -357,4 +387,6 @@ def summary_lines(result: dict[str, Any] | None) -> list[str]:
         f"training {row('training_danger')}. Where plain is above the limit "
         f"({len(found['pairs_plain_above_limit'])} pairs) the Lagrangian meets it within its "
         f"seeds' spread in {found['limit_met_within_spread']}; the penalty is significantly "
-        f"less dangerous than the Lagrangian in {versus['significantly_higher']} of 9 pairs."]
+        f"less dangerous than the Lagrangian in {versus['significantly_higher']} of 9 pairs"
+        + (f", CCR in {result['scorecard']['ccr']['danger_frequency']['worse']['significant']}"
+           if "scorecard" in result else "") + "."]

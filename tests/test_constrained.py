@@ -17,6 +17,7 @@ from experiments.constrained_analysis import (
     PAIRS,
     hypotheses,
     pair_rows,
+    scorecard,
     search_at,
     selection_at,
     table_cell_at,
@@ -103,6 +104,29 @@ def test_each_lagrangian_seed_is_checked_against_the_limit():
     assert len(found["pairs_plain_above_limit"]) == 9 and found["h_l1_holds"]
     assert found["versus_pessimistic"]["danger_frequency"]["significantly_higher"] == 9
     assert not hypotheses(rows, cost_limit=0.01)["h_l1_holds"]  # 0.05 [0.025, 0.075] > 0.01
+
+
+def test_the_scorecard_counts_directions_significance_and_holm():
+    """Danger against plain: 3 pairs much lower (p 0.001, which survive Holm over 9: the
+    first threshold is 0.05 / 9), 2 lower with p 0.03 (significant alone, not after Holm),
+    1 higher with p 0.01, 3 lower without significance. Success counts the other way: a
+    positive difference is better."""
+    tests = ([(-0.1, 0.001)] * 3 + [(-0.05, 0.03)] * 2 + [(0.05, 0.01)]
+             + [(-0.01, 0.4)] * 3)
+    rows = {}
+    for pair, (difference, p) in zip(PAIRS, tests, strict=True):
+        test = {"difference": difference, "p": p, "significant": p < 0.05}
+        rows[pair] = {"welch": {base: {m: test for m in ("danger_frequency", "success_rate",
+                                                           "training_danger")}
+                                for base in ("plain", "pessimistic", "ccr")}}
+    found = scorecard(rows)
+    danger = found["plain"]["danger_frequency"]
+    assert danger["better"] == {"cells": 8, "significant": 5, "significant_holm": 3}
+    assert danger["worse"] == {"cells": 1, "significant": 1, "significant_holm": 0}
+    assert danger["of"] == 9
+    success = found["ccr"]["success_rate"]  # "CCR better than the Lagrangian" is "worse"
+    assert success["better"] == {"cells": 1, "significant": 1, "significant_holm": 0}
+    assert success["worse"] == {"cells": 8, "significant": 5, "significant_holm": 3}
 
 
 def write_cells(folder: Path, cells: dict[str, dict]) -> None:
