@@ -155,6 +155,10 @@ def rule_value_rows(cells: dict[tuple[str, str, str], dict], rows: dict[tuple[st
     return found
 
 
+SCORED = ("danger_frequency", "success_rate", "training_danger")
+LOWER_IS_BETTER = {"danger_frequency": True, "success_rate": False, "training_danger": True}
+
+
 def summary_of(values: list[float], metric: str) -> dict[str, Any]:
     return {"per_seed": values,
             **mean_ci(values, bounds=METRIC_RANGES.get(metric, (0.0, 1.0)))}
@@ -166,8 +170,8 @@ def aggregates(rows: dict[tuple[str, str], dict[str, Any]], resamples: int = 200
     training danger, and the probabilities that the Lagrangian improves on each baseline and
     that CCR improves on the Lagrangian (lower danger, higher success)."""
     result: dict[str, Any] = {}
-    for metric, sign in (("danger_frequency", -1.0), ("success_rate", 1.0),
-                         ("training_danger", -1.0)):
+    for metric in SCORED:
+        sign = -1.0 if LOWER_IS_BETTER[metric] else 1.0
         scores = {v: np.array([rows[pair]["variants"][v][metric] for pair in PAIRS]).T
                   for v in VARIANTS}  # [seeds, 9]
         improvement = {
@@ -201,14 +205,10 @@ def hypotheses(rows: dict[tuple[str, str], dict[str, Any]], cost_limit: float
         "significantly_higher": sum(rows[p]["welch"]["pessimistic"][metric]["significant"]
                                     and rows[p]["welch"]["pessimistic"][metric]["difference"]
                                     > 0 for p in PAIRS)}
-        for metric in ("danger_frequency", "success_rate", "training_danger")}
+        for metric in SCORED}
     return {"pairs_plain_above_limit": [f"{s}-{a}" for s, a in above],
             "limit_met_within_spread": int(sum(met)), "h_l1_holds": bool(above) and
             sum(met) > len(above) / 2, "versus_pessimistic": versus}
-
-
-SCORED = ("danger_frequency", "success_rate", "training_danger")
-LOWER_IS_BETTER = {"danger_frequency": True, "success_rate": False, "training_danger": True}
 
 
 def scorecard(rows: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:

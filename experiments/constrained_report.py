@@ -217,12 +217,10 @@ def rule_value_lines(found: dict[str, Any] | None) -> list[str]:
     return lines
 
 
-def scorecard_lines(found: dict[str, Any] | None) -> list[str]:
+def scorecard_lines(found: dict[str, Any]) -> list[str]:
     """The scorecard extended to the Lagrangian (``found``: :func:`scorecard`'s), as a
     table: per comparison, the pairs where one variant is better (lower danger, higher
     success), how many significantly and how many after Holm."""
-    if not found:
-        return []
 
     def count(side: dict[str, int], of: int) -> str:
         return (f"{side['cells']} of {of} ({side['significant']} significantly, "
@@ -294,10 +292,9 @@ def markdown(result: dict[str, Any]) -> str:
                           for b in BASELINES)
         lines.append(f"| {metric.replace('_', ' ')} (IQM) | {iqm_text} | {over} | "
                      f"{improvement['ccr_over_lagrangian']['probability']:.2f} |")
-    if "scorecard" in result:
-        lines += ["", "## The scorecard, extended", "",
-                  "Better: lower danger, higher success; Welch p < 0.05 per pair, Holm over "
-                  "the 9 pairs of each comparison.", "", *scorecard_lines(result["scorecard"])]
+    lines += ["", "## The scorecard, extended", "",
+              "Better: lower danger, higher success; Welch p < 0.05 per pair, Holm over "
+              "the 9 pairs of each comparison.", "", *scorecard_lines(result["scorecard"])]
     found = result["hypotheses"]
     lines += ["", "## The amendment's hypotheses", "",
               f"H-L1: plain's mean danger is above the limit in "
@@ -338,8 +335,7 @@ def results_section(folder: str, result: dict[str, Any]) -> list[str]:
                                ("danger in training", training)):
         lines.append(f"| {name} | " + " | ".join(
             f"{found_metric['iqm'][v]['iqm']:.1%}" for v in (*BASELINES, "lagrangian")) + " |")
-    if "scorecard" in result:
-        lines += ["", *scorecard_lines(result["scorecard"])]
+    lines += ["", *scorecard_lines(result["scorecard"])]
     improvement = danger["probability_of_improvement"]
     at_rule = result.get("at_rule_values") or {}
     if at_rule.get("values"):
@@ -387,6 +383,5 @@ def summary_lines(result: dict[str, Any] | None) -> list[str]:
         f"training {row('training_danger')}. Where plain is above the limit "
         f"({len(found['pairs_plain_above_limit'])} pairs) the Lagrangian meets it within its "
         f"seeds' spread in {found['limit_met_within_spread']}; the penalty is significantly "
-        f"less dangerous than the Lagrangian in {versus['significantly_higher']} of 9 pairs"
-        + (f", CCR in {result['scorecard']['ccr']['danger_frequency']['worse']['significant']}"
-           if "scorecard" in result else "") + "."]
+        f"less dangerous than the Lagrangian in {versus['significantly_higher']} of 9 pairs, "
+        f"CCR in {result['scorecard']['ccr']['danger_frequency']['worse']['significant']}."]
