@@ -281,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [job for job in jobs_of(settings, chosen["variants"]) if job.variants == program]
         if jobs:
             trained += run_grid(settings.for_program(program), out, ledger, partial, jobs,
-                                cell_measures)
+                                cell_measures, trained_before=trained)
     ledger.record(trained, finished=True)
     if not distributed.is_primary():
         return 0

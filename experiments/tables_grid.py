@@ -225,11 +225,14 @@ def cell_stem(scenario: str, algo: str, variant: str) -> str:
 
 def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
              jobs: list[Job] | None = None,
-             measure: Callable[[dict[str, np.ndarray]], dict] | None = None) -> int:
+             measure: Callable[[dict[str, np.ndarray]], dict] | None = None,
+             trained_before: int = 0) -> int:
     """Trains every missing program of ``settings`` (``jobs``: those programs, default the
     tables' :func:`jobs_of`; ``measure``: :func:`cells_of`'s), compiling the next program
-    while one trains; returns the
-    number of programs trained. With several processes
+    while one trains; returns the number of programs trained. ``ledger`` records, as each
+    program finishes, the invocation's programs so far: ``trained_before`` (those of its
+    earlier calls, where one invocation calls this once per group of programs) and this
+    call's. With several processes
     (:mod:`ccrjax.run.distributed`) each trains its share of every program's runs and
     process 0 writes the cells."""
     jobs = jobs_of(settings) if jobs is None else jobs
@@ -261,7 +264,7 @@ def run_grid(settings: Settings, out: Path, ledger: Ledger, partial: Partial,
                                  json.dumps(cell) + "\n")
             partial.discard(job.name)
             job.training = None  # free the compiled program
-            ledger.record(number + 1)
+            ledger.record(trained_before + number + 1)
             log(progress.finished(number, runs.run_s + runs.compile_s))
     return len(todo)
 
