@@ -67,3 +67,26 @@ def subprocess_env() -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     return env
 
+
+
+@pytest.fixture
+def kill_grid_in_program(monkeypatch: pytest.MonkeyPatch):
+    """``arm(n)``: the experiments' grid (:func:`experiments.tables_grid.run_grid`) is killed
+    (``KeyboardInterrupt``) as it writes the cells of the ``n``-th program it trains from
+    then on, counted over its calls, as a Ctrl-C would be; ``arm(None)`` disarms it."""
+    from experiments import tables_grid
+
+    real_cells_of = tables_grid.cells_of
+
+    def arm(n: int | None) -> None:
+        calls: list[int] = []
+
+        def cells_of(*args):
+            calls.append(1)
+            if len(calls) == n:
+                raise KeyboardInterrupt
+            return real_cells_of(*args)
+
+        monkeypatch.setattr(tables_grid, "cells_of", real_cells_of if n is None else cells_of)
+
+    return arm

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ccrjax import cli
-from experiments import protocol, study, tables_grid
+from experiments import protocol, study
 from experiments import study_analysis as analysis
 from experiments import study_report as report
 from experiments.ledger import settings_record
@@ -136,25 +136,17 @@ def test_bad_input_is_one_line_before_anything_trains(argv, fragment, tmp_path, 
 
 @pytest.mark.slow  # eight quick programs: about 2 minutes
 def test_the_study_runs_end_to_end_in_the_column_and_resumes_without_training(
-        tmp_path, monkeypatch):
+        tmp_path, kill_grid_in_program):
     out = tmp_path / "study"
     argv = ["--regime", "column", "--quick", "--scenarios", "turbulence", "--out", str(out)]
     # Killed in its third program (one per call of run_grid): the record counts the two
     # programs the invocation finished, not only those of its last call.
-    real_cells_of, calls = tables_grid.cells_of, []
-
-    def killed_in_the_third_program(*args):
-        calls.append(1)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return real_cells_of(*args)
-
-    monkeypatch.setattr(tables_grid, "cells_of", killed_in_the_third_program)
+    kill_grid_in_program(3)
     with pytest.raises(KeyboardInterrupt):
         study.main(argv)
     run = json.loads((out / "invocations.json").read_text())["invocations"][-1]
     assert (run["programs_trained"], run["finished"]) == (2, False)
-    monkeypatch.setattr(tables_grid, "cells_of", real_cells_of)
+    kill_grid_in_program(None)
     assert study.main(argv) == 0
     run = json.loads((out / "invocations.json").read_text())["invocations"][-1]
     assert (run["programs_trained"], run["finished"]) == (5, True)

@@ -149,20 +149,11 @@ def test_a_rerun_skips_finished_cells_and_redoes_missing_ones(tables, quick_run,
 
 
 def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
-        tables, quick_run, monkeypatch, capsys):
+        tables, quick_run, kill_grid_in_program, capsys):
     out = quick_run
     for name in ("strong_wind-maddpg-ccr.json", "strong_wind-maac-ccr.json"):
         (out / "cells" / name).unlink()
-    grid = load_module("tables_grid")
-    real_cells_of, calls = grid.cells_of, []
-
-    def killed_during_the_second_program(*args):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real_cells_of(*args)
-
-    monkeypatch.setattr(grid, "cells_of", killed_during_the_second_program)
+    kill_grid_in_program(2)  # killed during the second program
     argv = ["--quick", "--out", str(out), "--checkpoint-minutes", "0.000001"]  # every chunk
     with pytest.raises(KeyboardInterrupt):
         tables.main(argv)
@@ -173,7 +164,7 @@ def test_a_killed_run_keeps_its_record_and_the_programs_it_finished(
     # The first program's checkpoint went with its cell; the killed one's is kept.
     assert [p.name for p in (out / "partial").iterdir()] == ["strong_wind-maac-ccr"]
 
-    monkeypatch.setattr(grid, "cells_of", real_cells_of)
+    kill_grid_in_program(None)
     capsys.readouterr()
     assert tables.main(argv) == 0
     err = capsys.readouterr().err
