@@ -2,9 +2,12 @@
 progress line, and the announced compilation.
 
 **Stopping.** A command calls :func:`install` as its first statement, before its other
-imports, so that a signal is answered from the process's first instant (this module
-imports only the standard library, and ``tqdm`` only when a progress bar is drawn). From
-then on SIGINT and SIGTERM never raise inside the program: the interpreter's C handler
+imports, so that a signal is answered from the command's first statement on (this module
+imports only the standard library, and ``tqdm`` only when a progress bar is drawn). Only the
+interpreter's own start-up comes before it (finding the site packages, compiling the
+command's module: tens of milliseconds, longer on a loaded machine), where Python answers
+Ctrl-C with its ``KeyboardInterrupt``. From then on SIGINT and SIGTERM never raise inside
+the program: the interpreter's C handler
 writes the signal's number to a pipe (``signal.set_wakeup_fd``) the moment it arrives, and a
 watcher thread reading it acts at once, whatever the main thread is doing (importing,
 tracing, or inside XLA, which cannot be interrupted and releases the interpreter's lock).
@@ -37,6 +40,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 INTERRUPTED = 130  # the shell's status for a command stopped by Ctrl-C
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # the signals that stop a command
 # The longest the exit waits for a checkpoint being written.
 WRITE_WAIT_S = 120.0
 
@@ -140,23 +144,40 @@ def install(prog: str) -> Stop:
     if threading.current_thread() is not threading.main_thread():
         return _CURRENT
     if not _WATCHER:
-        read, write = os.pipe()
-        os.set_blocking(write, False)
-        _WATCHER["previous"] = {number: signal.signal(number, _note)
-                                for number in (signal.SIGINT, signal.SIGTERM)}
-        _WATCHER["previous_fd"] = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
-        _WATCHER["fds"] = (read, write)
-        thread = threading.Thread(target=_watch, args=(read,), name="stop-watcher",
-                                  daemon=True)
-        thread.start()
-        _WATCHER["thread"] = thread
+        with _held(_SIGNALS):
+            read, write = os.pipe()
+            os.set_blocking(write, False)
+            _WATCHER["fds"] = (read, write)
+            _WATCHER["previous_fd"] = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+            thread = threading.Thread(target=_watch, args=(read,), name="stop-watcher",
+                                      daemon=True)
+            thread.start()
+            _WATCHER["thread"] = thread
+            _WATCHER["previous"] = {number: signal.signal(number, _note)
+                                    for number in _SIGNALS}
     return _CURRENT
+
+
+@contextlib.contextmanager
+def _held(numbers: tuple[int, ...]) -> Iterator[None]:
+    """Holds ``numbers`` pending (``pthread_sigmask``) in the block: a signal that comes
+    while the handlers, the wakeup pipe and the watcher are half in place is delivered once
+    they all are, neither lost nor met by Python's default ``KeyboardInterrupt``. The
+    watcher, started inside, keeps them held, so they reach the main thread."""
+    if not hasattr(signal, "pthread_sigmask"):  # not on Windows
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, numbers)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, numbers)
 
 
 @contextlib.contextmanager
 def stopping(prog: str) -> Iterator[Stop]:
     """:func:`install` for the block. Where the process is a command that installed the
-    handling at its first instant, it stays after the block; otherwise (a command called
+    handling at its first statement, it stays after the block; otherwise (a command called
     inside another program, such as a test) the previous handlers come back."""
     installed_before = bool(_WATCHER)
     stop = install(prog)

@@ -17,7 +17,7 @@ A run stopped at any moment (Ctrl-C, SIGTERM, even SIGKILL) and resumed with
 ``--resume`` ends with exactly the same parameters and metrics as the same run
 never interrupted: the whole state, random keys included, is in the checkpoint,
 and the same compiled chunk runs from it. Ctrl-C and SIGTERM (:mod:`ccrjax.terminal`, from the
-process's first instant) stop at once before training begins; while training, the first
+command's first statement) stop at once before training begins; while training, the first
 finishes the current chunk and saves a checkpoint, a second stops within seconds; each exits
 with status 130 saying what was kept. A run stopped before its first checkpoint starts again
 in the same folder. Mistakes on the command line get one line and exit status 2. The run

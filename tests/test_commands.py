@@ -346,10 +346,40 @@ raise SystemExit(terminal.run_command("prog", main, "nothing to keep"))
 """
 
 
-def test_an_interrupt_raised_where_python_discards_it_still_stops_the_command(
-        subprocess_env):
-    done = subprocess.run([sys.executable, "-c", STOP_IN_GC_CALLBACK], capture_output=True,
-                          text=True, timeout=120, env=subprocess_env, cwd=ROOT)
+
+# A signal that comes while install() is half done: here while it opens the wakeup pipe,
+# before any of its handlers is in place (where Python's default handler would raise
+# KeyboardInterrupt); install holds the signals until the handlers, the pipe and the
+# watcher are all in place.
+STOP_DURING_INSTALL = """
+import os, signal, sys, time
+from ccrjax import terminal
+
+opened = os.pipe
+
+def pipe_after_a_signal():
+    os.kill(os.getpid(), signal.SIGINT)
+    return opened()
+
+os.pipe = pipe_after_a_signal
+terminal.install("prog")
+os.pipe = opened
+until = time.monotonic() + 10  # work the stop should end within milliseconds
+while time.monotonic() < until:
+    pass
+print("ran on", file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("script, last", [
+    (STOP_IN_GC_CALLBACK, "prog: stopped by SIGINT; nothing to keep"),
+    (STOP_DURING_INSTALL, "prog: stopped by SIGINT; nothing was written"),
+], ids=["in-a-gc-callback", "during-install"])
+def test_a_signal_where_python_would_drop_or_raise_it_still_stops_the_command_in_one_line(
+        script, last, subprocess_env):
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120, env=subprocess_env, cwd=ROOT)
     assert done.returncode == terminal.INTERRUPTED, done.stderr
-    assert "ran on" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
-    assert done.stderr.strip().splitlines()[-1] == "prog: stopped by SIGINT; nothing to keep"
+    for sign in ("ran on", "Exception ignored", "Traceback"):
+        assert sign not in done.stderr, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == last

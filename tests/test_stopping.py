@@ -1,5 +1,5 @@
 """Ctrl-C and SIGTERM (ccrjax.terminal), in real processes of every command: from the
-process's first instant to the end of compilation (imports, set-up, tracing, compiling) a
+command's first statement to the end of compilation (imports, set-up, tracing, compiling) a
 signal ends it at once with status 130 and one line, never a traceback and never a run
 trained to its end; while training, a second signal ends the process within seconds
 however long the chunk in flight, keeping the last whole checkpoint, from which
@@ -32,12 +32,41 @@ def fresh_env(cache: Path) -> dict[str, str]:
     return env
 
 
+def caught(pid: int) -> set[int]:
+    """The signals process ``pid`` handles (``SigCgt`` in Linux's ``/proc/<pid>/status``)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:  # it has ended
+        return set()
+    mask = int(next(line for line in status.splitlines() if line.startswith("SigCgt:"))
+               .split()[1], 16)
+    return {number for number in range(1, 65) if mask >> (number - 1) & 1}
+
+
+def installed(process: subprocess.Popen, timeout: float = 120.0) -> float:
+    """Waits for the command's first statement, ``terminal.install``; returns the seconds
+    since the process began. The interpreter never handles SIGTERM itself and install takes
+    it last, with the signals held until everything is in place, so a signal sent once
+    SIGTERM is handled is the command's. Before that is the interpreter's own start-up,
+    which no program can answer."""
+    if not Path("/proc/self/status").exists():
+        pytest.skip("needs Linux's /proc to see when a process installs its handlers")
+    began = time.monotonic()
+    while signal.SIGTERM not in caught(process.pid):
+        if process.poll() is not None or time.monotonic() - began > timeout:
+            break
+        time.sleep(0.002)
+    return time.monotonic() - began
+
+
 def signalled(argv: list[str], delay: float, cache: Path,
               name: str = "SIGINT") -> tuple[int | None, str, float]:
-    """Starts ``argv``, sends ``name`` ``delay`` seconds later; returns its status, stderr
-    and the seconds it took to end after the signal (``None`` if it ended before it)."""
+    """Starts ``argv`` and sends ``name`` ``delay`` seconds after the command's first
+    statement; returns its status, stderr and the seconds it took to end after the signal
+    (``None`` if it ended before it)."""
     process = subprocess.Popen(argv, cwd=ROOT, env=fresh_env(cache), text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    installed(process)
     time.sleep(delay)
     if process.poll() is not None:
         return None, process.communicate()[1], 0.0
@@ -55,18 +84,19 @@ def assert_one_line_stop(status: int | None, err: str, prog: str, name: str = "S
 
 
 def test_train_stopped_at_any_moment_before_training_exits_130_in_one_line(tmp_path: Path):
-    """The moments are spread over the time a reference process takes from its start to
-    the end of its compilation, measured first, alike on any machine. On a loaded machine a
-    process may compile sooner than the reference did, so a late moment can fall after its
-    compilation: that stop is either the training stop (the chunk finished, a checkpoint
-    kept) or, in the instant between compilation and the first chunk, the stop before
-    training (no checkpoint, the one line); each is checked as such, and at least the first
-    moments must fall before compilation ends."""
+    """The moments are spread over the time a reference process takes from its first
+    statement to the end of its compilation, measured first, alike on any machine. On a
+    loaded machine a process may compile sooner than the reference did, so a late moment can
+    fall after its compilation: that stop is either the training stop (the chunk finished, a
+    checkpoint kept) or, in the instant between compilation and the first chunk, the stop
+    before training (no checkpoint, the one line); each is checked as such, and at least the
+    first moments must fall before compilation ends."""
     command = [sys.executable, "-m", "ccrjax.train", *TINY, "--no-compilation-cache"]
-    began = time.monotonic()
     reference = subprocess.Popen([*command, "--out", str(tmp_path / "reference")], cwd=ROOT,
                                  env=fresh_env(tmp_path / "c"), text=True,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    installed(reference)
+    began = time.monotonic()
     for line in reference.stderr:
         if "compiled in" in line:
             compiled = time.monotonic() - began
@@ -112,7 +142,7 @@ def test_every_command_stopped_early_exits_130_in_one_line(command, finished_run
                     "--quick", "--scenarios", "turbulence", "--algos", "iddpg", "--out",
                     str(tmp_path / "search")], "python experiments/search.py"),
     }[command]
-    for delay in (0.1, 0.5, 1.5, 3.0):
+    for delay in (0.0, 0.1, 0.5, 1.5, 3.0):
         status, err, took = signalled(argv, delay, tmp_path / f"cache-{delay}")
         assert_one_line_stop(status, err, prog)
         assert took < 10, (delay, took)
