@@ -8,6 +8,7 @@ two chunks of 200 steps) serves the in-process runs; the session's compilation c
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import os
@@ -383,3 +384,24 @@ def test_a_signal_where_python_would_drop_or_raise_it_still_stops_the_command_in
     for sign in ("ran on", "Exception ignored", "Traceback"):
         assert sign not in done.stderr, done.stderr
     assert done.stderr.strip().splitlines()[-1] == last
+
+
+COMMANDS = sorted(path for folder in ("ccrjax", "experiments")
+                  for path in (ROOT / folder).rglob("*.py")
+                  if '__name__ == "__main__"' in path.read_text())
+
+
+@pytest.mark.parametrize("path", COMMANDS, ids=lambda path: str(path.relative_to(ROOT)))
+def test_every_command_installs_the_stop_handling_before_its_other_imports(path: Path):
+    """A signal is answered from a command's first statement on (``tests/test_stopping.py``
+    times its signals from there), so that statement must be the stop handling's, before
+    anything slow to import: ``from ccrjax import terminal`` then, as a command,
+    ``terminal.install(...)``."""
+    body = [node for node in ast.parse(path.read_text()).body
+            if not (isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant))
+            and not (isinstance(node, ast.ImportFrom) and node.module == "__future__")]
+    assert ast.unparse(body[0]) == "from ccrjax import terminal", ast.unparse(body[0])
+    guard = body[1]
+    assert isinstance(guard, ast.If), ast.unparse(guard)
+    assert ast.unparse(guard.test) == "__name__ == '__main__'", ast.unparse(guard)
+    assert ast.unparse(guard.body[0]).startswith("terminal.install("), ast.unparse(guard)
