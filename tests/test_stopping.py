@@ -43,12 +43,11 @@ def caught(pid: int) -> set[int]:
     return {number for number in range(1, 65) if mask >> (number - 1) & 1}
 
 
-def installed(process: subprocess.Popen, timeout: float = 120.0) -> float:
-    """Waits for the command's first statement, ``terminal.install``; returns the seconds
-    since the process began. The interpreter never handles SIGTERM itself and install takes
-    it last, with the signals held until everything is in place, so a signal sent once
-    SIGTERM is handled is the command's. Before that is the interpreter's own start-up,
-    which no program can answer."""
+def installed(process: subprocess.Popen, timeout: float = 120.0) -> None:
+    """Waits for the command's first statement, ``terminal.install``. The interpreter
+    never handles SIGTERM itself and install takes it last, with the signals held until
+    everything is in place, so a signal sent once SIGTERM is handled is the command's.
+    Before that is the interpreter's own start-up, which no program can answer."""
     if not Path("/proc/self/status").exists():
         pytest.skip("needs Linux's /proc to see when a process installs its handlers")
     began = time.monotonic()
@@ -56,7 +55,6 @@ def installed(process: subprocess.Popen, timeout: float = 120.0) -> float:
         if process.poll() is not None or time.monotonic() - began > timeout:
             break
         time.sleep(0.002)
-    return time.monotonic() - began
 
 
 def signalled(argv: list[str], delay: float, cache: Path,
