@@ -272,11 +272,34 @@ def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path) 
                              "--no-train to train them")
 
 
+def comparable_identities(record: dict[str, Any], other: dict[str, Any], algo: str
+                          ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The :func:`cell_identity` of learner ``algo`` under two settings records, with a
+    by-variant ``values`` (the study's searched value of each variant it trains) cut to
+    the variants both name: an invocation that trains fewer variants makes some of the
+    same cells, not other ones, while one variant's value that differs makes other cells."""
+    mine, theirs = cell_identity(record, algo), cell_identity(other, algo)
+    if isinstance(mine.get("values"), dict) and isinstance(theirs.get("values"), dict):
+        shared = mine["values"].keys() & theirs["values"].keys()
+        mine["values"] = {k: v for k, v in mine["values"].items() if k in shared}
+        theirs["values"] = {k: v for k, v in theirs["values"].items() if k in shared}
+    return mine, theirs
+
+
 def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
     """Whether two settings records make the same cells, for every learner (so that the
     invocation records of a narrower or wider invocation into a folder stay together)."""
-    return all(cell_identity(record, algo) == cell_identity(other, algo)
-               for algo in protocol.EXPERIMENT_ALGOS)
+    return all(mine == theirs for mine, theirs in (
+        comparable_identities(record, other, algo) for algo in protocol.EXPERIMENT_ALGOS))
+
+
+def joined_settings(record: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
+    """The settings of a folder whose cells two records of :func:`same_cells` made:
+    ``record``'s, with a by-variant ``values`` holding every variant either names."""
+    joined = dict(record)
+    if isinstance(record.get("values"), dict) and isinstance(other.get("values"), dict):
+        joined["values"] = {**other["values"], **record["values"]}
+    return joined
 
 
 def check_out(out: Path, force: bool) -> str | None:
@@ -437,8 +460,8 @@ def check_experiment(folder: Path, experiment: str, settings: dict[str, Any],
                 f"{settings['variant']} search's: name another --out")
     if not force and not same_cells(old, settings):
         differing = sorted({key for algo in protocol.EXPERIMENT_ALGOS
-                            for key, value in cell_identity(settings, algo).items()
-                            if cell_identity(old, algo).get(key) != value})
+                            for mine, theirs in [comparable_identities(settings, old, algo)]
+                            for key, value in mine.items() if theirs.get(key) != value})
         return (f"{folder} holds cells made with other settings ({', '.join(differing)}): "
                 "give --force to train over them, or name another --out")
     return None
@@ -462,7 +485,8 @@ class Ledger:
     ones (dropped when the settings changed) and this one, kept up to date. Invocations
     running in the same folder at once (parts of a grid side by side) each keep the
     others' records: every update re-reads the file under a lock and replaces only its own.
-    The file's settings are those the folder's cells share (:func:`folder_settings`); what
+    The file's settings are those the folder's cells share (:func:`folder_settings`, with
+    the values of every variant its invocations trained, :func:`joined_settings`); what
     each invocation made (its scenarios, learners, parts) is in its own record's ``scope``.
     """
 
@@ -492,11 +516,13 @@ class Ledger:
             return
         self.current.update(wall_time_s=time.perf_counter() - self.start,
                             programs_trained=trained, finished=finished)
+        folder = folder_settings(self.settings)
         with locked(self.out):
             on_disk = read_json(self.out / INVOCATIONS)
             if (isinstance(on_disk, dict) and isinstance(on_disk.get("settings"), dict)
                     and isinstance(on_disk.get("invocations"), list)
                     and same_cells(on_disk["settings"], self.settings)):
+                folder = joined_settings(folder, on_disk["settings"])
                 # The file as it is now, less this invocation (kept in its place): earlier
                 # records, and those of invocations in the same folder since this one began.
                 ids = [record.get("id") for record in on_disk["invocations"]]
@@ -506,7 +532,7 @@ class Ledger:
                                  if record.get("id") != self.current["id"]]
             write_atomic(self.out / INVOCATIONS,
                          json.dumps({"experiment": self.experiment,
-                                     "settings": folder_settings(self.settings),
+                                     "settings": folder,
                                      "invocations": self.invocations}, indent=1) + "\n")
 
 

@@ -75,6 +75,34 @@ def test_a_programs_cells_record_only_their_own_value():
                      "turbulence-maddpg-plain+pessimistic", "turbulence-maddpg-ccr"]
 
 
+def test_an_invocation_of_fewer_variants_keeps_the_folders_records(tmp_path):
+    """``--variants`` narrows an invocation's values to the variants it trains: its cells
+    are some of the folder's, so the earlier records stay and the folder keeps every
+    variant's value; a variant trained with another value makes other cells."""
+    from experiments import ledger
+
+    def settings(**values: float):
+        return study.Settings(values=values, regime="column", eval_every=120_000)
+
+    whole = {"pessimistic": 3.0, "ccr": 10.0, "lagrangian": 0.1}
+    ledger.Ledger(tmp_path, settings(**whole), "whole", "study").record(1, finished=True)
+    narrow = ledger.Ledger(tmp_path, settings(ccr=10.0), "narrow", "study")
+    narrow.record(1, finished=True)
+    written = json.loads((tmp_path / "invocations.json").read_text())
+    assert [r["command"] for r in written["invocations"]] == ["whole", "narrow"]
+    assert written["settings"]["values"] == whole
+    assert ledger.check_experiment(tmp_path, "study", settings_record(settings(ccr=10.0)),
+                                   force=False) is None
+    problem = ledger.check_experiment(tmp_path, "study", settings_record(settings(ccr=30.0)),
+                                      force=False)
+    assert problem is not None and "(values)" in problem
+    other = ledger.Ledger(tmp_path, settings(ccr=30.0), "other value", "study")
+    other.record(0)
+    written = json.loads((tmp_path / "invocations.json").read_text())
+    assert [r["command"] for r in written["invocations"]] == ["other value"]
+    assert written["settings"]["values"] == {"ccr": 30.0}
+
+
 def search_cells(folder, regime: str, variant: str, danger: list[float]) -> None:
     """Made-up search cells of the study's pairs: value 0 and the six values, each seed
     the same metrics; ``danger`` per grid value, success always 0.9."""
