@@ -69,21 +69,19 @@ from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
 from experiments import protocol
 from experiments.budgets_report import budgets_markdown, check_budgets, draw_budget_curves
+from experiments.cell_identity import cell_is_current, settings_record, training_record
 from experiments.ledger import (
     STOPPED_KEPT,
     Partial,
     add_checkpoint_option,
     add_out_options,
-    cell_is_current,
     check_quick_out,
     device_name,
     log,
     open_experiment,
     plan_pairs,
     read_json,
-    settings_record,
     train_pairs,
-    training_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 
@@ -104,7 +102,7 @@ class Settings(protocol.Settings):
     seeds: tuple[int, ...] = protocol.BUDGET_SEEDS
     candidate_every: int = CANDIDATE_EVERY  # steps between the candidate budgets checked
     # The candidate budgets named one by one (the longer-budget check's); empty: every
-    # multiple of ``candidate_every``. Not part of what a cell holds (ledger.NOT_IN_CELLS).
+    # multiple of ``candidate_every``. Not part of what a cell holds (cell_identity.NOT_IN_CELLS).
     candidate_budgets: tuple[int, ...] = ()
 
     def config(self, scenario: str, algo: str) -> TrainConfig:

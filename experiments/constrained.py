@@ -40,6 +40,7 @@ from ccrjax.run import distributed
 from ccrjax.run.folder import write_atomic
 from ccrjax.training import ALGOS, TrainConfig
 from experiments import protocol
+from experiments.cell_identity import settings_record
 from experiments.constrained_report import report
 from experiments.ledger import (
     RESULTS,
@@ -53,7 +54,6 @@ from experiments.ledger import (
     read_json,
     refuse_untrained,
     repo_relative,
-    settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 from experiments.results_report import write_report

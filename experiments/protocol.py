@@ -204,14 +204,14 @@ class Settings:
     """The settings every experiment trains its cells with (``budgets.py``, ``search.py``
     and ``tables.py`` each add their own fields and default seeds). They are stored in
     every cell; a cell made with other settings is trained again
-    (``ledger.cell_is_current``)."""
+    (``cell_identity.cell_is_current``)."""
 
     seeds: tuple[int, ...]
     steps: int | None = None  # None: the protocol's budget of each learner
     eval_every: int = EVAL_EVERY
     eval_episodes: int = EVAL_EPISODES
     quick: bool = False  # tiny sizes (:func:`quick`): the pipeline, not the learning
-    # Which programs an invocation trains, not what a cell holds (ledger.NOT_IN_CELLS):
+    # Which programs an invocation trains, not what a cell holds (cell_identity.NOT_IN_CELLS):
     # a grid can be split over invocations.
     scenarios: tuple[str, ...] = PAPER_SCENARIOS
     algos: tuple[str, ...] = ALGOS

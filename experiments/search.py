@@ -64,6 +64,7 @@ from ccrjax.training import ALGOS, TrainConfig
 from ccrjax.training.grid import GridTraining
 from ccrjax.viz.plots import SearchChoice, draw_search_tradeoff
 from experiments import protocol
+from experiments.cell_identity import cell_is_current, settings_record, training_record
 from experiments.ledger import (
     RESULTS,
     STOPPED_KEPT,
@@ -71,7 +72,6 @@ from experiments.ledger import (
     add_checkpoint_option,
     add_no_train_option,
     add_out_options,
-    cell_is_current,
     cell_path,
     check_quick_out,
     device_name,
@@ -81,9 +81,7 @@ from experiments.ledger import (
     plan_pairs,
     read_json,
     refuse_untrained,
-    settings_record,
     train_pairs,
-    training_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 from experiments.selection import select

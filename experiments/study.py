@@ -46,6 +46,7 @@ from ccrjax.run.folder import write_atomic
 from ccrjax.run.sweep_grid import SEARCHED_PARAMETER
 from ccrjax.training import TrainConfig
 from experiments import protocol, search
+from experiments.cell_identity import cell_is_current, settings_record
 from experiments.ledger import (
     RESULTS,
     STOPPED_KEPT,
@@ -53,14 +54,12 @@ from experiments.ledger import (
     add_checkpoint_option,
     add_no_train_option,
     add_out_options,
-    cell_is_current,
     cell_path,
     check_quick_out,
     open_experiment,
     read_json,
     refuse_untrained,
     repo_relative,
-    settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 from experiments.study_measures import cell_measures

@@ -38,7 +38,8 @@ from ccrjax.run.stats import format_mean_ci
 from ccrjax.run.sweep_grid import nonfinite_runs, nonfinite_text
 from ccrjax.viz.plots import PALETTE, save_figure
 from experiments import protocol, study
-from experiments.ledger import read_json, settings_record, why_not_current
+from experiments.cell_identity import settings_record, why_not_current
+from experiments.ledger import read_json
 from experiments.study import PROGRAMS, STUDY_SEEDS, VARIANTS
 from experiments.study_analysis import Cells, aggregates, cell_row, hypotheses, per_seed
 

@@ -54,6 +54,7 @@ from ccrjax.run import distributed
 from ccrjax.run.folder import write_atomic
 from ccrjax.training import ALGOS
 from experiments import protocol
+from experiments.cell_identity import settings_record
 from experiments.ledger import (
     RESULTS,
     STOPPED_KEPT,
@@ -66,7 +67,6 @@ from experiments.ledger import (
     read_json,
     refuse_untrained,
     repo_relative,
-    settings_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 from experiments.results_report import write_report

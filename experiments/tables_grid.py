@@ -35,16 +35,14 @@ from ccrjax.transforms import Pessimistic
 from ccrjax.transforms.ccr import CCR, CCRConfig
 from ccrjax.viz.analysis import arrival_analysis, followers_closest
 from experiments import protocol
+from experiments.cell_identity import cell_is_current, settings_record, training_record
 from experiments.ledger import (
     Ledger,
     Partial,
     ProgramProgress,
-    cell_is_current,
     device_name,
     log,
     read_json,
-    settings_record,
-    training_record,
 )
 from experiments.paper import PAPER_SCENARIOS
 from experiments.reference_controllers import evaluate_controller

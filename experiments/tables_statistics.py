@@ -20,7 +20,7 @@ from ccrjax.run.stats import (
 from ccrjax.run.sweep_grid import nonfinite_runs
 from ccrjax.training import ALGOS
 from experiments import protocol
-from experiments.ledger import settings_record
+from experiments.cell_identity import settings_record
 from experiments.paper import PAPER, PAPER_HEADLINES, PAPER_OBSTACLE_DISTANCE_RATIO, PAPER_SCENARIOS
 from experiments.tables_grid import (
     LEARNER_NAMES,

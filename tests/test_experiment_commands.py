@@ -497,7 +497,7 @@ def test_the_exact_plain_runs_are_taken_only_from_the_penalty_searchs_matching_c
     cells = {("turbulence", "iddpg"): {}}
     (tmp_path / "pessimistic" / "cells").mkdir(parents=True)
     path = tmp_path / "pessimistic" / "cells" / "turbulence-iddpg.json"
-    from experiments.ledger import settings_record
+    from experiments.cell_identity import settings_record
 
     cell = {"algo": "iddpg", "settings": settings_record(penalty),
             "budget": 3_000_000, "rows": []}
@@ -589,7 +589,7 @@ def test_a_cell_made_with_other_training_parameters_is_not_current(search, budge
     the same settings, in every experiment and variant, or the cell is trained again. A
     MAAC cell made with the MPE's five actions is not current for box9; a cell made before
     the record was stored is judged by its settings alone."""
-    from experiments import ledger
+    from experiments import cell_identity
 
     for quick in (False, True):
         made = [(search.Settings(variant=variant, values=(1.0,), quick=quick),
@@ -599,30 +599,30 @@ def test_a_cell_made_with_other_training_parameters_is_not_current(search, budge
                   lambda s, sc, a, v=v: s.config(sc, a, v))
                  for v in ("plain", "pessimistic", "ccr")]
         for settings, config_of in made:
-            record = ledger.settings_record(settings)
+            record = cell_identity.settings_record(settings)
             for scenario, algo in (("hidden_obstacle", "maac"), ("turbulence", "iddpg")):
                 config = config_of(settings, scenario, algo)
                 cell = {"scenario": scenario, "algo": algo, "settings": record,
                         "budget": settings.budget(algo),
-                        "training": ledger.training_record(config)}
+                        "training": cell_identity.training_record(config)}
                 if isinstance(settings, tables.Settings):
                     cell["variant"] = config.variant
-                assert ledger.cell_is_current(cell, record), (settings, scenario, algo)
+                assert cell_identity.cell_is_current(cell, record), (settings, scenario, algo)
 
     settings = search.Settings(variant="ccr", values=(1.0,))
-    record = ledger.settings_record(settings)
+    record = cell_identity.settings_record(settings)
     config = settings.config("hidden_obstacle", "maac")
-    training = ledger.training_record(config)
+    training = cell_identity.training_record(config)
     assert training["learner"]["action_set"] == "box9"
     assert "lam" not in training["transform"] and training["transform"]["window"] == 4
     cell = {"scenario": "hidden_obstacle", "algo": "maac", "settings": record,
             "budget": settings.budget("maac"), "training": training}
     mpe5 = {**training, "learner": {**training["learner"], "action_set": "mpe5"}}
-    assert not ledger.cell_is_current({**cell, "training": mpe5}, record)
+    assert not cell_identity.cell_is_current({**cell, "training": mpe5}, record)
     harder = {**training, "scenario": {**training["scenario"], "thickness": 0.5}}
-    assert not ledger.cell_is_current({**cell, "training": harder}, record)
+    assert not cell_identity.cell_is_current({**cell, "training": harder}, record)
     legacy = {k: v for k, v in cell.items() if k != "training"}
-    assert ledger.cell_is_current(legacy, record)
+    assert cell_identity.cell_is_current(legacy, record)
 
 
 def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, budgets,
@@ -631,7 +631,7 @@ def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, b
     amendment of 2026-11-25) reach the budgets, both searches and every variant of the
     tables, and a MAAC cell made at the original's 4 x 1024 is not current; the DDPG
     family keeps its defaults."""
-    from experiments import ledger, protocol
+    from experiments import cell_identity, protocol
 
     made = [(budgets.Settings(), lambda s, sc, a: s.config(sc, a))]
     made += [(search.Settings(variant=variant, values=(1.0,)),
@@ -643,16 +643,16 @@ def test_every_experiment_trains_maac_at_the_protocols_update_settings(search, b
         assert (maac.gradient_steps, maac.batch_size, maac.update_every) == (1, 256, 100)
         assert maac == protocol.LEARNERS["maac"]
         assert config_of(settings, "strong_wind", "maddpg").resolved_learner == DDPGConfig()
-        record = ledger.settings_record(settings)
+        record = cell_identity.settings_record(settings)
         config = config_of(settings, "strong_wind", "maac")
-        training = ledger.training_record(config)
+        training = cell_identity.training_record(config)
         cell = {"scenario": "strong_wind", "algo": "maac", "settings": record,
                 "budget": settings.budget("maac"), "training": training,
                 "variant": config.variant}
-        assert ledger.cell_is_current(cell, record)
+        assert cell_identity.cell_is_current(cell, record)
         original = {**training, "learner": {**training["learner"], "gradient_steps": 4,
                                             "batch_size": 1024}}
-        assert not ledger.cell_is_current({**cell, "training": original}, record)
+        assert not cell_identity.cell_is_current({**cell, "training": original}, record)
 
 
 @pytest.mark.parametrize("name", ["budgets", "search", "tables", "results_report", "calibrate",
@@ -738,7 +738,7 @@ def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_
     """Two invocations working in one folder at once (lanes of a grid side by side): every
     update of one keeps the other's record, each in the place it began, and its own scope
     (the file's settings are the cells' alone, whoever wrote last)."""
-    from experiments import ledger
+    from experiments import cell_identity, ledger
 
     def settings(*extra: str):
         return search.settings_from(search.build_parser().parse_args(
@@ -755,8 +755,9 @@ def test_invocations_in_one_folder_at_once_keep_each_others_records(search, tmp_
     assert [(r["command"], r["finished"]) for r in records] == [("first", True),
                                                                  ("second", False)]
     assert [r["scope"]["algos"] for r in records] == [["iddpg"], ["maac"]]
-    assert written["settings"] == ledger.folder_settings(ledger.settings_record(settings()))
-    assert not set(ledger.NOT_IN_CELLS) & set(written["settings"])
+    assert written["settings"] == cell_identity.folder_settings(
+        cell_identity.settings_record(settings()))
+    assert not set(cell_identity.NOT_IN_CELLS) & set(written["settings"])
     assert [r["command"] for r in first.invocations] == ["first", "second"]
 
 

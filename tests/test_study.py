@@ -14,7 +14,7 @@ from ccrjax import cli
 from experiments import protocol, study
 from experiments import study_analysis as analysis
 from experiments import study_report as report
-from experiments.ledger import settings_record
+from experiments.cell_identity import settings_record
 from experiments.study_measures import cell_measures, follower_mask, followers
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from experiments import budgets, budgets_report, protocol, regimes, search
-from experiments.ledger import expected_training, settings_record
+from experiments.cell_identity import expected_training, settings_record
 
 RESULTS = Path(__file__).resolve().parent.parent / "experiments" / "results"
 

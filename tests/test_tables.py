@@ -37,14 +37,15 @@ def quick_run(tables, tmp_path_factory):
 
 def assert_cells_record_their_training(out: Path) -> None:
     """Every cell written holds the record of what it was trained with, equal to what the
-    current code expects for it (``ledger.cell_is_current``)."""
-    from experiments import ledger
+    current code expects for it (``cell_identity.cell_is_current``)."""
+    from experiments import cell_identity
 
     cells = sorted((out / "cells").glob("*.json"))
     assert cells
     for path in cells:
         cell = json.loads(path.read_text())
-        assert cell["training"] == ledger.expected_training(cell, cell["settings"]), path.name
+        expected = cell_identity.expected_training(cell, cell["settings"])
+        assert cell["training"] == expected, path.name
 
 
 def test_quick_mode_writes_the_tables_the_json_and_the_figures(tables, quick_run):
