@@ -163,8 +163,10 @@ def same_cells(record: dict[str, Any], other: dict[str, Any]) -> bool:
 
 
 def joined_settings(record: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
-    """The settings of a folder whose cells two records of :func:`same_cells` made:
-    ``record``'s, with a by-variant ``values`` holding every variant either names."""
+    """The settings of a folder after an invocation with settings ``record`` into one whose
+    settings were ``other``: ``record``'s, with a by-variant ``values`` holding every variant
+    either names (``record``'s value where both do; the cells of a variant it did not train
+    are still there, made with ``other``'s)."""
     joined = dict(record)
     if isinstance(record.get("values"), dict) and isinstance(other.get("values"), dict):
         joined["values"] = {**other["values"], **record["values"]}

@@ -8,6 +8,7 @@ training is checkpointed every ``--checkpoint-minutes`` into ``<out>/partial/<ce
 killed invocation loses at most those minutes. Every invocation is recorded in
 ``<out>/invocations.json`` (command, commit, device, date, wall time, programs trained,
 whether it finished), rewritten after each program, so a killed one keeps its record.
+Whether a stored cell is current is :mod:`experiments.cell_identity`'s question.
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ def add_no_train_option(parser: Any) -> None:
 def refuse_untrained(cells: dict[str, Path], record: dict[str, Any], out: Path) -> None:
     """Under ``--no-train``, raises :class:`ccrjax.cli.UsageError` when any of the named
     ``cells`` (name to path) the summary needs is not what ``record`` would make
-    (:func:`why_not_current`), naming each and why."""
+    (:func:`experiments.cell_identity.why_not_current`), naming each and why."""
     problems = [f"{name}: {why}" for name, path in cells.items()
                 if (why := why_not_current(read_json(path), record))]
     if problems:
@@ -340,8 +341,9 @@ class Ledger:
     ones (dropped when the settings changed) and this one, kept up to date. Invocations
     running in the same folder at once (parts of a grid side by side) each keep the
     others' records: every update re-reads the file under a lock and replaces only its own.
-    The file's settings are those the folder's cells share (:func:`folder_settings`, with
-    the values of every variant its invocations trained, :func:`joined_settings`); what
+    The file's settings are those the folder's cells share
+    (:func:`experiments.cell_identity.folder_settings`, with the value of every variant its
+    invocations trained, :func:`experiments.cell_identity.joined_settings`); what
     each invocation made (its scenarios, learners, parts) is in its own record's ``scope``.
     """
 
@@ -374,10 +376,13 @@ class Ledger:
         folder = folder_settings(self.settings)
         with locked(self.out):
             on_disk = read_json(self.out / INVOCATIONS)
+            if isinstance(on_disk, dict) and isinstance(on_disk.get("settings"), dict):
+                # The variants this invocation does not train keep their cells, and so
+                # their values, even where it trains the others' over other cells (--force).
+                folder = joined_settings(folder, on_disk["settings"])
             if (isinstance(on_disk, dict) and isinstance(on_disk.get("settings"), dict)
                     and isinstance(on_disk.get("invocations"), list)
                     and same_cells(on_disk["settings"], self.settings)):
-                folder = joined_settings(folder, on_disk["settings"])
                 # The file as it is now, less this invocation (kept in its place): earlier
                 # records, and those of invocations in the same folder since this one began.
                 ids = [record.get("id") for record in on_disk["invocations"]]

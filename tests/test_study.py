@@ -78,7 +78,8 @@ def test_a_programs_cells_record_only_their_own_value():
 def test_an_invocation_of_fewer_variants_keeps_the_folders_records(tmp_path):
     """``--variants`` narrows an invocation's values to the variants it trains: its cells
     are some of the folder's, so the earlier records stay and the folder keeps every
-    variant's value; a variant trained with another value makes other cells."""
+    variant's value; a variant trained with another value makes other cells, and the other
+    variants' values stay (their cells do)."""
     from experiments import ledger
 
     def settings(**values: float):
@@ -96,11 +97,13 @@ def test_an_invocation_of_fewer_variants_keeps_the_folders_records(tmp_path):
     problem = ledger.check_experiment(tmp_path, "study", settings_record(settings(ccr=30.0)),
                                       force=False)
     assert problem is not None and "(values)" in problem
-    other = ledger.Ledger(tmp_path, settings(ccr=30.0), "other value", "study")
+    other = ledger.Ledger(tmp_path, settings(ccr=30.0), "other value", "study")  # --force
     other.record(0)
     written = json.loads((tmp_path / "invocations.json").read_text())
     assert [r["command"] for r in written["invocations"]] == ["other value"]
-    assert written["settings"]["values"] == {"ccr": 30.0}
+    assert written["settings"]["values"] == {**whole, "ccr": 30.0}
+    assert ledger.check_experiment(tmp_path, "study", settings_record(settings(pessimistic=1.0)),
+                                   force=False) is not None
 
 
 def search_cells(folder, regime: str, variant: str, danger: list[float]) -> None:
